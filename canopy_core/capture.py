@@ -1,0 +1,321 @@
+"""The capture folder format, version 1: reading, validating and holding one tree's RGB-D views.
+
+A capture is ``capture.json`` (the manifest), and per view ``color.png|jpg``, ``depth.png`` and
+``camera.json``. Every defect raises :class:`CaptureError` naming the view, the file and the field. The
+``parse_*`` functions take bytes so that the service checks uploads with the same rules.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path, PurePosixPath
+from typing import Any
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from canopy_core.config import DEFAULT_HSV_RANGES, HsvRange
+from canopy_core.errors import CaptureError
+from canopy_core.images import DEFAULT_MAX_PIXELS, decode_color, decode_depth
+
+__all__ = [
+    "CAPTURE_FORMAT",
+    "CameraModel",
+    "Capture",
+    "CaptureManifest",
+    "Intrinsics",
+    "View",
+    "color_file_names",
+    "expected_files",
+    "load_capture",
+    "load_view",
+    "parse_camera",
+    "parse_manifest",
+]
+
+CAPTURE_FORMAT = "canopy-capture/1"
+COLOR_NAMES = ("color.png", "color.jpg")
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class _BallsSection(_Strict):
+    diameter_m: float = Field(0.10, gt=0.0, le=2.0, allow_inf_nan=False)
+    colors: list[str] = Field(default_factory=lambda: ["red", "yellow", "blue"], min_length=1)
+    hsv: dict[str, HsvRange] = Field(default_factory=dict)
+
+    @model_validator(mode="after")
+    def _colors_have_ranges(self) -> _BallsSection:
+        if len(set(self.colors)) != len(self.colors):
+            raise ValueError("calibration_balls.colors lists a colour twice")
+        for color in self.colors:
+            if color not in self.hsv and color not in DEFAULT_HSV_RANGES:
+                raise ValueError(
+                    f"colour {color!r} has no default HSV range; give one in calibration_balls.hsv "
+                    f"(known: {', '.join(DEFAULT_HSV_RANGES)})"
+                )
+        return self
+
+
+class _RoiSection(_Strict):
+    radius_m: float = Field(gt=0.0, le=20.0, allow_inf_nan=False)
+    max_height_m: float = Field(5.0, gt=0.0, le=50.0, allow_inf_nan=False)
+
+
+class CaptureManifest(_Strict):
+    """The content of ``capture.json``."""
+
+    model_config = ConfigDict(extra="allow", frozen=True)
+
+    format: str
+    orchard: str = Field(min_length=1, max_length=200)
+    row: str = Field(min_length=1, max_length=200)
+    tree: str = Field(min_length=1, max_length=200)
+    captured_at: str = Field(min_length=1, max_length=64)
+    sensor: str = "unknown"
+    calibration_balls: _BallsSection = Field(default_factory=_BallsSection)
+    views: list[str] = Field(min_length=1, max_length=64)
+    roi: _RoiSection | None = None
+
+    @field_validator("format")
+    @classmethod
+    def _known_format(cls, value: str) -> str:
+        if value != CAPTURE_FORMAT:
+            raise ValueError(f"unsupported format {value!r}; expected {CAPTURE_FORMAT!r}")
+        return value
+
+    @field_validator("views")
+    @classmethod
+    def _safe_view_paths(cls, views: list[str]) -> list[str]:
+        for view in views:
+            path = PurePosixPath(view)
+            if (
+                path.is_absolute()
+                or "\\" in view
+                or len(path.parts) != 2
+                or path.parts[0] != "views"
+                or path.parts[1] in {".", ".."}
+            ):
+                raise ValueError(f"view path {view!r} must be 'views/<name>' inside the capture")
+        if len(set(views)) != len(views):
+            raise ValueError("a view is listed twice")
+        return views
+
+
+class _IntrinsicsModel(_Strict):
+    width: int = Field(gt=0, le=20000)
+    height: int = Field(gt=0, le=20000)
+    fx: float = Field(gt=0.0, allow_inf_nan=False)
+    fy: float = Field(gt=0.0, allow_inf_nan=False)
+    cx: float = Field(allow_inf_nan=False)
+    cy: float = Field(allow_inf_nan=False)
+
+
+class _CameraModel(_Strict):
+    depth_intrinsics: _IntrinsicsModel
+    depth_scale: float = Field(1000.0, gt=0.0, allow_inf_nan=False)
+    color_intrinsics: _IntrinsicsModel | None = None
+    depth_to_color: list[list[float]] | None = None
+
+    @model_validator(mode="after")
+    def _extrinsics_complete(self) -> _CameraModel:
+        if (self.color_intrinsics is None) != (self.depth_to_color is None):
+            raise ValueError("color_intrinsics and depth_to_color must be given together, or neither")
+        if self.depth_to_color is not None:
+            _check_rigid(self.depth_to_color)
+        return self
+
+
+def _check_rigid(matrix: list[list[float]]) -> None:
+    m = np.asarray(matrix, dtype=float)
+    if m.shape != (4, 4):
+        raise ValueError(f"depth_to_color must be a 4x4 matrix, got shape {m.shape}")
+    if not np.isfinite(m).all():
+        raise ValueError("depth_to_color has non-finite entries")
+    if not np.allclose(m[3], [0, 0, 0, 1], atol=1e-6):
+        raise ValueError("depth_to_color's last row must be [0, 0, 0, 1]")
+    rotation = m[:3, :3]
+    if not np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-3) or np.linalg.det(rotation) < 0:
+        raise ValueError("depth_to_color's upper-left 3x3 block is not a rotation")
+
+
+@dataclass(frozen=True)
+class Intrinsics:
+    """Pinhole intrinsics of one camera, in pixels; OpenCV axes (x right, y down, z forward)."""
+
+    width: int
+    height: int
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """``(width, height)`` in pixels."""
+        return (self.width, self.height)
+
+
+@dataclass(frozen=True)
+class CameraModel:
+    """A view's depth camera and, for native pairs, its colour camera and the rigid map between them."""
+
+    depth: Intrinsics
+    depth_scale: float
+    color: Intrinsics | None = None
+    depth_to_color: np.ndarray | None = None
+
+    @property
+    def registered(self) -> bool:
+        """True when the colour image is pixel-for-pixel registered to the depth image."""
+        return self.color is None
+
+    @property
+    def color_size(self) -> tuple[int, int]:
+        """``(width, height)`` the colour image must have."""
+        return self.color.size if self.color is not None else self.depth.size
+
+
+@dataclass(frozen=True)
+class View:
+    """One RGB-D pair: raw depth (uint16, ``depth_scale`` units per metre, 0 = none) and RGB colour."""
+
+    name: str
+    depth_raw: np.ndarray
+    color_rgb: np.ndarray
+    camera: CameraModel
+
+    @property
+    def depth_m(self) -> np.ndarray:
+        """Depth along the optical axis in metres, float32, 0 where there is no reading."""
+        return self.depth_raw.astype(np.float32) / np.float32(self.camera.depth_scale)
+
+
+@dataclass(frozen=True)
+class Capture:
+    """A loaded, validated capture: its manifest and its views in manifest order."""
+
+    root: Path | None
+    manifest: CaptureManifest
+    views: tuple[View, ...]
+
+
+def _raise_validation(exc: ValidationError, *, file: str, view: str | None = None) -> None:
+    first = exc.errors()[0]
+    field = ".".join(str(part) for part in first["loc"]) or None
+    message = first["msg"].removeprefix("Value error, ")
+    extra = f" ({len(exc.errors()) - 1} more problem(s))" if len(exc.errors()) > 1 else ""
+    location = f"{field}: " if field else ""
+    raise CaptureError(f"{location}{message}{extra}", file=file, view=view, field=field) from exc
+
+
+def _load_json(data: bytes, *, file: str, view: str | None) -> Any:
+    try:
+        return json.loads(data, parse_constant=_reject_constant)
+    except ValueError as exc:
+        raise CaptureError(f"not valid JSON ({exc})", file=file, view=view) from exc
+
+
+def _reject_constant(name: str) -> float:
+    raise ValueError(f"{name} is not a finite number")
+
+
+def parse_manifest(data: bytes, *, file: str = "capture.json") -> CaptureManifest:
+    """Parse and validate the bytes of ``capture.json``."""
+    raw = _load_json(data, file=file, view=None)
+    if not isinstance(raw, dict):
+        raise CaptureError("must hold a JSON object", file=file)
+    try:
+        return CaptureManifest.model_validate(raw)
+    except ValidationError as exc:
+        _raise_validation(exc, file=file)
+        raise  # unreachable: _raise_validation always raises
+
+
+def parse_camera(data: bytes, *, file: str, view: str | None = None) -> CameraModel:
+    """Parse and validate the bytes of a view's ``camera.json``."""
+    raw = _load_json(data, file=file, view=view)
+    if not isinstance(raw, dict):
+        raise CaptureError("must hold a JSON object", file=file, view=view)
+    try:
+        model = _CameraModel.model_validate(raw)
+    except ValidationError as exc:
+        _raise_validation(exc, file=file, view=view)
+        raise
+    return CameraModel(
+        depth=Intrinsics(**model.depth_intrinsics.model_dump()),
+        depth_scale=model.depth_scale,
+        color=Intrinsics(**model.color_intrinsics.model_dump()) if model.color_intrinsics else None,
+        depth_to_color=np.asarray(model.depth_to_color, dtype=float) if model.depth_to_color else None,
+    )
+
+
+def color_file_names(view: str) -> tuple[str, ...]:
+    """The two names a view's colour image may have (PNG or JPEG)."""
+    return tuple(f"{view}/{name}" for name in COLOR_NAMES)
+
+
+def expected_files(manifest: CaptureManifest) -> list[str]:
+    """Files a complete capture holds besides capture.json; colour is listed by its PNG name."""
+    return [f"{view}/{name}" for view in manifest.views for name in ("camera.json", "depth.png", "color.png")]
+
+
+def _read(root: Path, relative: str, *, view: str | None) -> bytes:
+    path = root / relative
+    try:
+        return path.read_bytes()
+    except FileNotFoundError as exc:
+        raise CaptureError("file is missing", file=relative, view=view) from exc
+    except OSError as exc:
+        raise CaptureError(f"cannot read the file ({exc.strerror})", file=relative, view=view) from exc
+
+
+def load_view(root: Path, name: str, *, max_pixels: int = DEFAULT_MAX_PIXELS) -> View:
+    """Load and check one view folder (``root / name``) of a capture."""
+    camera = parse_camera(_read(root, f"{name}/camera.json", view=name), file=f"{name}/camera.json", view=name)
+    depth = decode_depth(
+        _read(root, f"{name}/depth.png", view=name),
+        file=f"{name}/depth.png",
+        view=name,
+        expected_size=camera.depth.size,
+        max_pixels=max_pixels,
+    )
+    present = [file for file in color_file_names(name) if (root / file).is_file()]
+    if not present:
+        raise CaptureError("colour image is missing (color.png or color.jpg)", file=f"{name}/color.png", view=name)
+    if len(present) > 1:
+        raise CaptureError("both color.png and color.jpg are present; keep one", file=present[0], view=name)
+    color = decode_color(
+        _read(root, present[0], view=name),
+        file=present[0],
+        view=name,
+        expected_size=camera.color_size,
+        max_pixels=max_pixels,
+    )
+    return View(name=name, depth_raw=depth, color_rgb=color, camera=camera)
+
+
+def load_capture(path: str | Path, *, max_pixels: int = DEFAULT_MAX_PIXELS) -> Capture:
+    """Load and validate a capture folder.
+
+    Parameters
+    ----------
+    path
+        The capture folder (the one holding ``capture.json``).
+    max_pixels
+        Images with more pixels are refused before decoding.
+
+    Raises
+    ------
+    CaptureError
+        Naming the view, file and field of the first defect found.
+    """
+    root = Path(path)
+    if not root.is_dir():
+        raise CaptureError(f"capture folder {root} does not exist or is not a folder")
+    manifest = parse_manifest(_read(root, "capture.json", view=None))
+    views = tuple(load_view(root, name, max_pixels=max_pixels) for name in manifest.views)
+    return Capture(root=root, manifest=manifest, views=views)

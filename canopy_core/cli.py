@@ -1,0 +1,117 @@
+"""The ``canopy`` command line: measure a capture offline, check its balls, simulate captures.
+
+Commands import the measurement pipeline only when they run, so ``canopy --help`` stays instant. Every
+error the core raises on purpose is printed as one line on stderr with exit code 2.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+
+from canopy_core.errors import CanopyError
+
+__all__ = ["app", "main"]
+
+app = typer.Typer(
+    name="canopy",
+    help="Measure fruit-tree canopies (height, width, crown thickness) from multi-view RGB-D captures.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+
+CaptureArg = Annotated[Path, typer.Argument(help="Capture folder (the one holding capture.json).")]
+JsonOpt = Annotated[bool, typer.Option("--json", help="Print one JSON object instead of a summary.")]
+
+
+def _print_json(document: dict[str, Any]) -> None:
+    sys.stdout.write(json.dumps(document, indent=1, allow_nan=False, default=_jsonable) + "\n")
+
+
+def _jsonable(value: Any) -> Any:
+    if hasattr(value, "tolist"):
+        return value.tolist()
+    raise TypeError(f"{type(value).__name__} is not JSON serialisable")
+
+
+@app.command()
+def measure(
+    capture: CaptureArg,
+    as_json: JsonOpt = False,
+    cloud: Annotated[
+        Path | None, typer.Option("--cloud", help="Write the fused, cropped cloud (world frame) as binary PLY.")
+    ] = None,
+) -> None:
+    """Register the views of a capture and measure the tree: height, width, thickness and more."""
+    from canopy_core.cloud_io import write_ply
+    from canopy_core.measure import measure as run_measure
+
+    result = run_measure(capture)
+    if cloud is not None:
+        write_ply(cloud, result.cloud_points_m, result.cloud_colors_rgb)
+    if as_json:
+        _print_json(result.to_dict())
+        return
+    identity = result.manifest
+    typer.echo(f"{identity.orchard} / {identity.row} / {identity.tree}  ({identity.captured_at})")
+    typer.echo(f"{'mode':<12}{'H (m)':>9}{'W (m)':>9}{'D (m)':>9}{'points':>10}")
+    for name, metrics in result.modes.items():
+        typer.echo(
+            f"{name:<12}{metrics.height_m:>9.3f}{metrics.width_m:>9.3f}{metrics.thickness_m:>9.3f}"
+            f"{metrics.points:>10}"
+        )
+
+
+@app.command()
+def balls(capture: CaptureArg, as_json: JsonOpt = False) -> None:
+    """Find the calibration balls in every view: centre, fitted radius, points and residual."""
+    from canopy_core.balls import detect_balls
+    from canopy_core.capture import load_capture
+    from canopy_core.measure import config_for, filtered_cloud
+
+    loaded = load_capture(capture)
+    config = config_for(loaded.manifest)
+    found = {}
+    for view in loaded.views:
+        cloud = filtered_cloud(view, config.filters)
+        found[view.name] = detect_balls(cloud, config.balls)
+    if as_json:
+        _print_json(
+            {"views": {name: {color: fit.to_dict() for color, fit in fits.items()} for name, fits in found.items()}}
+        )
+        return
+    for name, fits in found.items():
+        for color, fit in fits.items():
+            x, y, z = fit.center_m
+            typer.echo(
+                f"{name} {color:<7} centre ({x:+.3f}, {y:+.3f}, {z:+.3f}) m  radius {fit.radius_m * 1000:.1f} mm  "
+                f"{fit.points} points  rms {fit.rms_m * 1000:.1f} mm"
+            )
+
+
+@app.command()
+def simulate(
+    out: Annotated[Path, typer.Argument(help="Folder to write the captures into.")],
+    seed: Annotated[int, typer.Option(help="Random seed; the same seed writes the same captures.")] = 0,
+    count: Annotated[int, typer.Option(min=1, help="Number of trees.")] = 1,
+    views: Annotated[int, typer.Option(min=1, help="Views per tree.")] = 2,
+) -> None:
+    """Write synthetic captures of procedural apple trees, each with its ground_truth.json."""
+    from canopy_core.simulate import simulate_captures
+
+    for path in simulate_captures(out, seed=seed, count=count, n_views=views):
+        typer.echo(str(path))
+
+
+def main() -> None:
+    """Console-script entry point: run the app, turning the core's errors into one line and exit 2."""
+    try:
+        app()
+    except CanopyError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        sys.exit(2)

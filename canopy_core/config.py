@@ -1,0 +1,176 @@
+"""Every tunable parameter of a measurement, with physical units and defaults, in one tree of models.
+
+A ``MeasureConfig`` is built from the defaults, then the capture's own settings (ball diameter, colours and
+HSV ranges, region of interest), then any caller overrides; it is echoed in every result so that a
+measurement can be reproduced exactly.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Any
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+__all__ = [
+    "DEFAULT_HSV_RANGES",
+    "BallConfig",
+    "FilterConfig",
+    "GroundConfig",
+    "HsvRange",
+    "IcpConfig",
+    "MeasureConfig",
+    "MetricsConfig",
+    "RoiConfig",
+]
+
+HsvTriple = Annotated[list[Annotated[int, Field(ge=0, le=255)]], Field(min_length=3, max_length=3)]
+HsvRange = Annotated[list[HsvTriple], Field(min_length=2, max_length=2)]
+"""``[[h, s, v], [h, s, v]]``, lower and upper bound on OpenCV's HSV scale (H 0-180, S and V 0-255).
+A lower hue above the upper hue wraps round through 0, as red needs."""
+
+DEFAULT_HSV_RANGES: dict[str, list[list[int]]] = {
+    "red": [[168, 110, 50], [8, 255, 255]],
+    "orange": [[9, 130, 80], [19, 255, 255]],
+    "yellow": [[20, 110, 70], [34, 255, 255]],
+    "green": [[40, 110, 50], [80, 255, 255]],
+    "blue": [[100, 140, 40], [128, 255, 255]],
+    "purple": [[130, 90, 40], [160, 255, 255]],
+}
+
+
+class _Section(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class BallConfig(_Section):
+    """The calibration balls and how they are found (``balls.py``)."""
+
+    diameter_m: float = Field(0.10, gt=0.0, le=2.0, description="True ball diameter, metres.")
+    colors: list[str] = Field(default_factory=lambda: ["red", "yellow", "blue"], min_length=1)
+    hsv: dict[str, HsvRange] = Field(
+        default_factory=dict, description="Per-colour HSV ranges overriding DEFAULT_HSV_RANGES."
+    )
+    min_points: int = Field(12, ge=4, description="Fewest ball-coloured surface points a ball may have.")
+    inlier_tolerance_m: float = Field(
+        0.008, gt=0.0, description="A point is a sphere inlier when its distance to the surface is below this."
+    )
+    max_radius_error: float = Field(
+        0.25, gt=0.0, lt=1.0, description="Largest relative difference of the fitted and the true radius."
+    )
+    max_rms_m: float = Field(0.012, gt=0.0, description="Largest RMS distance of inliers to the fitted sphere.")
+    ransac_iterations: int = Field(300, ge=10)
+
+    @field_validator("colors")
+    @classmethod
+    def _colors_unique(cls, colors: list[str]) -> list[str]:
+        if len(set(colors)) != len(colors):
+            raise ValueError("colours must be distinct")
+        return colors
+
+    @property
+    def radius_m(self) -> float:
+        """Half the diameter."""
+        return self.diameter_m / 2.0
+
+    def hsv_range(self, color: str) -> list[list[int]]:
+        """The HSV range for ``color``: the capture's override, else the default for that colour name."""
+        if color in self.hsv:
+            return self.hsv[color]
+        if color in DEFAULT_HSV_RANGES:
+            return DEFAULT_HSV_RANGES[color]
+        raise KeyError(color)
+
+
+class RoiConfig(_Section):
+    """Region of interest: a vertical cylinder around the trunk that holds the tree and nothing else."""
+
+    radius_m: float = Field(1.5, gt=0.0, le=20.0, description="Cylinder radius around the balls' axis, m.")
+    max_height_m: float = Field(5.0, gt=0.0, le=50.0, description="Cylinder top above the ground, metres.")
+
+
+class FilterConfig(_Section):
+    """Per-view cleaning of the back-projected points (``filters.py``)."""
+
+    min_depth_m: float = Field(0.3, ge=0.0, description="Depth readings nearer than this are dropped.")
+    max_depth_m: float = Field(8.0, gt=0.0, description="Depth readings farther than this are dropped.")
+    flying_window_px: int = Field(2, ge=1, le=5, description="Half-size of the flying-pixel window.")
+    flying_jump_ratio: float = Field(
+        0.03,
+        gt=0.0,
+        description="A pixel is flying when its window holds depths both nearer and farther than it by more "
+        "than this fraction of its own depth (plus flying_jump_min_m).",
+    )
+    flying_jump_min_m: float = Field(0.02, ge=0.0)
+    outlier_neighbors: int = Field(16, ge=2, description="Neighbours of the statistical outlier removal.")
+    outlier_std_ratio: float = Field(2.5, gt=0.0)
+
+
+class GroundConfig(_Section):
+    """Ground plane fitting and the world frame (``ground.py``)."""
+
+    search_band_m: float = Field(
+        0.20, gt=0.0, description="Ground candidates lie within this height of the balls' contact plane."
+    )
+    inlier_tolerance_m: float = Field(0.03, gt=0.0, description="Ground plane RANSAC inlier distance.")
+    trunk_radius_m: float = Field(
+        0.6, gt=0.0, description="Ground height is taken from ground points within this distance of the axis."
+    )
+
+
+class IcpConfig(_Section):
+    """ICP refinement after the ball registration (``refine.py``)."""
+
+    enabled: bool = True
+    voxel_m: float = Field(0.01, gt=0.0, description="Voxel size the clouds are thinned to for ICP.")
+    max_correspondence_m: float = Field(0.03, gt=0.0)
+    max_iterations: int = Field(40, ge=1)
+    max_translation_m: float = Field(
+        0.05, gt=0.0, description="A refinement moving a view farther than this from the balls is rejected."
+    )
+    max_rotation_deg: float = Field(2.0, gt=0.0)
+
+
+class MetricsConfig(_Section):
+    """Canopy metrics (``metrics.py``)."""
+
+    top_support_radius_m: float = Field(
+        0.05, gt=0.0, description="The top counts only where this many points surround it (stray points)."
+    )
+    top_support_points: int = Field(4, ge=1)
+    kde_bandwidth_m: float = Field(0.04, gt=0.0, description="Gaussian kernel bandwidth h of eq. 7, metres.")
+    kde_threshold: float = Field(
+        0.25,
+        gt=0.0,
+        description="Crown base z_f of eq. 8: the lowest z where f(z) * H first exceeds this (dimensionless: "
+        "1 is the density of points spread evenly over the tree's height).",
+    )
+    voxel_volume_m: float = Field(0.05, gt=0.0, description="Voxel edge for the occupied-voxel crown volume.")
+    crown_base_min_radius_m: float = Field(
+        0.25, gt=0.0, description="Geometric crown base: lowest slice whose points spread wider than this."
+    )
+    slice_m: float = Field(0.05, gt=0.0, description="Height of the slices for the geometric crown base.")
+
+
+class MeasureConfig(_Section):
+    """All parameters of one measurement. Units are metres unless a name says otherwise."""
+
+    balls: BallConfig = Field(default_factory=BallConfig)
+    roi: RoiConfig = Field(default_factory=RoiConfig)
+    filters: FilterConfig = Field(default_factory=FilterConfig)
+    ground: GroundConfig = Field(default_factory=GroundConfig)
+    icp: IcpConfig = Field(default_factory=IcpConfig)
+    metrics: MetricsConfig = Field(default_factory=MetricsConfig)
+
+    def merged(self, overrides: dict[str, Any]) -> MeasureConfig:
+        """A copy with ``overrides`` (a nested dict of the same shape, any depth) applied and validated."""
+        return MeasureConfig.model_validate(_deep_merge(self.model_dump(), overrides))
+
+
+def _deep_merge(base: dict[str, Any], overrides: dict[str, Any]) -> dict[str, Any]:
+    out = dict(base)
+    for key, value in overrides.items():
+        if isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = _deep_merge(out[key], value)
+        else:
+            out[key] = value
+    return out

@@ -1,0 +1,176 @@
+"""The world frame of a tree: z up from a robust ground-plane fit, origin on the ground at the tree.
+
+The paper takes "up" from the plane of the three ball centres. Balls lie on uneven ground, so a few
+centimetres of bump under one ball tilts that plane by degrees; here the balls' plane only seeds a robust
+plane fit of the ground points around the tree (metres of ground, so the bumps average out), and the
+ground height under the trunk comes from a local fit around the trunk's base, so neither the balls nor
+the bumps bias the height H.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import open3d as o3d
+
+from canopy_core.config import GroundConfig
+
+__all__ = ["GroundFrame", "ball_plane", "fit_ground_frame", "horizontal_distance"]
+
+_MAX_GROUND_TILT_DEG = 15.0
+"""A ground fit tilted more than this from the balls' plane has found something else (a wall, a slope)."""
+_RANSAC_SAMPLE = 30_000
+_TRUNK_SLICE_M = (0.12, 0.35)
+_TRUNK_SEARCH_RADIUS_M = 0.8
+_TRUNK_EXCLUSION_M = 0.12
+
+
+@dataclass(frozen=True)
+class GroundFrame:
+    """The world frame found for a capture, and how it was found.
+
+    ``world_from_reference`` maps the reference view's camera frame to the world: z up, y across the row
+    (away from the reference camera), x along it; origin below the balls' centroid at the ground height
+    of the trunk's base.
+    """
+
+    world_from_reference: np.ndarray
+    ground_points: int
+    ground_rms_m: float
+    tilt_from_ball_plane_deg: float
+    trunk_xy_m: tuple[float, float]
+    trunk_points: int
+    ground_height_at_trunk_m: float
+
+
+def ball_plane(ball_centres: np.ndarray, *, up_hint: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Centroid and unit normal (oriented along ``up_hint``) of the plane through the ball centres."""
+    centroid = ball_centres.mean(axis=0)
+    _, _, vt = np.linalg.svd(ball_centres - centroid)
+    normal = vt[2]
+    return centroid, normal if normal @ up_hint > 0 else -normal
+
+
+def horizontal_distance(points: np.ndarray, origin: np.ndarray, up: np.ndarray) -> np.ndarray:
+    """Distance of each point from the vertical line through ``origin`` along unit ``up``."""
+    offset = points - origin
+    return np.linalg.norm(offset - np.outer(offset @ up, up), axis=1)
+
+
+def _plane_fit(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    centroid = points.mean(axis=0)
+    _, _, vt = np.linalg.svd(points - centroid, full_matrices=False)
+    return centroid, vt[2]
+
+
+def _ransac_ground(points: np.ndarray, tolerance_m: float) -> np.ndarray:
+    """Indices (into ``points``) of the dominant plane's inliers."""
+    rng = np.random.default_rng(0)
+    sample = points if points.shape[0] <= _RANSAC_SAMPLE else points[rng.choice(points.shape[0], _RANSAC_SAMPLE)]
+    o3d.utility.random.seed(0)
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(sample))
+    (a, b, c, d), _ = cloud.segment_plane(distance_threshold=tolerance_m, ransac_n=3, num_iterations=300)
+    distance = np.abs(points @ np.array([a, b, c]) + d) / np.linalg.norm([a, b, c])
+    return np.flatnonzero(distance < tolerance_m)
+
+
+def fit_ground_frame(
+    points_m: np.ndarray,
+    ball_centres_m: np.ndarray,
+    *,
+    ball_radius_m: float,
+    up_hint: np.ndarray,
+    forward_hint: np.ndarray,
+    search_radius_m: float,
+    config: GroundConfig,
+) -> GroundFrame:
+    """Fit the ground around the balls and build the world frame.
+
+    Parameters
+    ----------
+    points_m
+        ``(N, 3)`` points of all views, in the reference view's frame.
+    ball_centres_m
+        ``(B, 3)`` ball centres in the same frame, B >= 3.
+    ball_radius_m
+        The balls' radius: their centres stand this high above the ground they rest on.
+    up_hint, forward_hint
+        Roughly up (the reference camera's -y) and the reference camera's viewing direction.
+    search_radius_m
+        Ground is sought within this horizontal distance of the balls' centroid.
+    config
+        Ground-fit settings.
+    """
+    centroid, ball_up = ball_plane(ball_centres_m, up_hint=up_hint)
+    contact = centroid - ball_radius_m * ball_up
+    height = (points_m - contact) @ ball_up
+    near_balls = np.zeros(points_m.shape[0], dtype=bool)
+    for centre in ball_centres_m:
+        near_balls |= np.linalg.norm(points_m - centre, axis=1) < 1.5 * ball_radius_m + 0.01
+    candidates = np.flatnonzero(
+        (np.abs(height) < config.search_band_m)
+        & (horizontal_distance(points_m, centroid, ball_up) < search_radius_m)
+        & ~near_balls
+    )
+    up = ball_up
+    ground = candidates
+    if candidates.size >= 50:
+        inliers = candidates[_ransac_ground(points_m[candidates], config.inlier_tolerance_m)]
+        if inliers.size >= 50:
+            plane_point, normal = _plane_fit(points_m[inliers])
+            normal = normal if normal @ ball_up > 0 else -normal
+            if np.degrees(np.arccos(np.clip(normal @ ball_up, -1, 1))) < _MAX_GROUND_TILT_DEG:
+                up, ground = normal, inliers
+                contact = centroid - ((centroid - plane_point) @ up) * up
+    rotation = _world_rotation(up, forward_hint)
+    ground_world = (points_m[ground] - contact) @ rotation.T
+    trunk_xy, trunk_points = _trunk_position(points_m, contact, rotation, ball_centres_m)
+    ground_height = _local_ground_height(ground_world, trunk_xy, config.trunk_radius_m)
+    world_from_reference = np.eye(4)
+    world_from_reference[:3, :3] = rotation
+    world_from_reference[:3, 3] = -rotation @ contact - np.array([0.0, 0.0, ground_height])
+    residual = ground_world[:, 2] if ground_world.size else np.zeros(1)
+    return GroundFrame(
+        world_from_reference=world_from_reference,
+        ground_points=int(ground.size),
+        ground_rms_m=float(np.sqrt(np.mean(residual**2))),
+        tilt_from_ball_plane_deg=float(np.degrees(np.arccos(np.clip(up @ ball_up, -1.0, 1.0)))),
+        trunk_xy_m=(float(trunk_xy[0]), float(trunk_xy[1])),
+        trunk_points=trunk_points,
+        ground_height_at_trunk_m=float(ground_height),
+    )
+
+
+def _world_rotation(up: np.ndarray, forward_hint: np.ndarray) -> np.ndarray:
+    """Rows x (along the row), y (across, away from the camera), z (up) in reference coordinates."""
+    across = forward_hint - (forward_hint @ up) * up
+    across /= np.linalg.norm(across)
+    along = np.cross(across, up)
+    return np.stack([along, across, up])
+
+
+def _trunk_position(
+    points_m: np.ndarray, contact: np.ndarray, rotation: np.ndarray, ball_centres_m: np.ndarray
+) -> tuple[np.ndarray, int]:
+    """Horizontal position of the trunk: median of the points in a low slice near the balls' centroid."""
+    world = (points_m - contact) @ rotation.T
+    low, high = _TRUNK_SLICE_M
+    in_slice = (world[:, 2] > low) & (world[:, 2] < high)
+    in_slice &= np.linalg.norm(world[:, :2], axis=1) < _TRUNK_SEARCH_RADIUS_M
+    if np.count_nonzero(in_slice) < 20:
+        return np.zeros(2), 0
+    return np.median(world[in_slice, :2], axis=0), int(np.count_nonzero(in_slice))
+
+
+def _local_ground_height(ground_world: np.ndarray, trunk_xy: np.ndarray, radius_m: float) -> float:
+    """Ground height at the trunk: a local plane through the ground points around it, read at its centre."""
+    offset = ground_world[:, :2] - trunk_xy
+    distance = np.linalg.norm(offset, axis=1)
+    near = (distance > _TRUNK_EXCLUSION_M) & (distance < radius_m)
+    if np.count_nonzero(near) < 20:
+        return float(np.median(ground_world[:, 2])) if ground_world.size else 0.0
+    design = np.column_stack([np.ones(np.count_nonzero(near)), offset[near]])
+    coefficients, *_ = np.linalg.lstsq(design, ground_world[near, 2], rcond=None)
+    return float(coefficients[0])
+

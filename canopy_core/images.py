@@ -1,0 +1,129 @@
+"""Decoding and checking the image files of a capture: 16-bit depth PNGs and 8-bit RGB colour images.
+
+Works on bytes so that the service can check an upload with exactly the checks the offline loader makes.
+Pillow reads the header first, so an oversized image (a decompression bomb) is refused before decoding.
+"""
+
+from __future__ import annotations
+
+import io
+import warnings
+
+import numpy as np
+from PIL import Image
+
+from canopy_core.errors import CaptureError
+
+__all__ = ["DEFAULT_MAX_PIXELS", "decode_color", "decode_depth"]
+
+DEFAULT_MAX_PIXELS = 40_000_000
+"""Largest image accepted, in pixels: well above a 4K colour frame, far below a decompression bomb."""
+
+_DEPTH_MODES = {"I;16", "I;16L", "I;16B"}
+_COLOR_MODES = {"RGB", "RGBA", "P"}
+
+
+def _open(data: bytes, *, file: str, view: str | None, max_pixels: int) -> Image.Image:
+    """Open an image and check its size from the header, before any pixel is decoded."""
+    if not data:
+        raise CaptureError("the file is empty", file=file, view=view)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", Image.DecompressionBombWarning)
+            image = Image.open(io.BytesIO(data))
+    except (OSError, Image.DecompressionBombWarning, Image.DecompressionBombError) as exc:
+        raise CaptureError(f"not a readable PNG or JPEG image ({exc})", file=file, view=view) from exc
+    if image.format not in {"PNG", "JPEG"}:
+        raise CaptureError(f"is a {image.format} image; PNG or JPEG expected", file=file, view=view)
+    if image.width * image.height > max_pixels:
+        raise CaptureError(
+            f"image of {image.width}x{image.height} pixels exceeds the limit of {max_pixels} pixels",
+            file=file,
+            view=view,
+        )
+    try:
+        image.load()
+    except (OSError, SyntaxError, ValueError) as exc:
+        raise CaptureError(f"corrupt or truncated image ({exc})", file=file, view=view) from exc
+    return image
+
+
+def decode_depth(
+    data: bytes,
+    *,
+    file: str,
+    view: str | None = None,
+    expected_size: tuple[int, int] | None = None,
+    max_pixels: int = DEFAULT_MAX_PIXELS,
+) -> np.ndarray:
+    """Decode a depth PNG into a ``(height, width)`` uint16 array (0 = no reading).
+
+    Parameters
+    ----------
+    data
+        The file's bytes.
+    file, view
+        Where the bytes came from, for error messages.
+    expected_size
+        ``(width, height)`` from camera.json's depth_intrinsics; a different size is an error.
+    max_pixels
+        Images with more pixels are refused from their header alone.
+
+    Raises
+    ------
+    CaptureError
+        Not a PNG, corrupt, not 16-bit single channel, wrong size, or no valid depth pixel.
+    """
+    image = _open(data, file=file, view=view, max_pixels=max_pixels)
+    if image.format != "PNG":
+        raise CaptureError("depth must be a lossless PNG, not JPEG", file=file, view=view)
+    if image.mode not in _DEPTH_MODES:
+        raise CaptureError(
+            f"depth must be 16-bit single-channel; this PNG is mode {image.mode} "
+            f"({len(image.getbands())} channel(s))",
+            file=file,
+            view=view,
+        )
+    depth = np.asarray(image, dtype=np.uint16)
+    _check_size(depth, expected_size, file=file, view=view, what="depth_intrinsics")
+    if not depth.any():
+        raise CaptureError("the depth image has no valid pixel (all zero)", file=file, view=view)
+    return depth
+
+
+def decode_color(
+    data: bytes,
+    *,
+    file: str,
+    view: str | None = None,
+    expected_size: tuple[int, int] | None = None,
+    max_pixels: int = DEFAULT_MAX_PIXELS,
+) -> np.ndarray:
+    """Decode a colour PNG or JPEG into a ``(height, width, 3)`` uint8 RGB array.
+
+    ``expected_size`` is ``(width, height)`` from camera.json (colour intrinsics, or the depth size when the
+    colour is registered to the depth image). Alpha is dropped; palette images are expanded; grey or 16-bit
+    images are refused because ball detection needs 8-bit colour.
+    """
+    image = _open(data, file=file, view=view, max_pixels=max_pixels)
+    if image.mode not in _COLOR_MODES:
+        raise CaptureError(
+            f"colour must be 8-bit RGB; this image is mode {image.mode}", file=file, view=view
+        )
+    rgb = np.asarray(image.convert("RGB") if image.mode != "RGB" else image, dtype=np.uint8)
+    _check_size(rgb, expected_size, file=file, view=view, what="intrinsics")
+    return rgb
+
+
+def _check_size(
+    pixels: np.ndarray, expected_size: tuple[int, int] | None, *, file: str, view: str | None, what: str
+) -> None:
+    if expected_size is None:
+        return
+    width, height = expected_size
+    if pixels.shape[1] != width or pixels.shape[0] != height:
+        raise CaptureError(
+            f"image is {pixels.shape[1]}x{pixels.shape[0]} but camera.json {what} says {width}x{height}",
+            file=file,
+            view=view,
+        )

@@ -1,0 +1,330 @@
+"""The measurement pipeline: a capture's views in, one registered tree cloud and its metrics out.
+
+Stages, each reported to the progress callback by name: ``load`` (capture read and checked), ``filter``
+(back-projection without flying pixels), ``balls`` (ball detection per view), ``register`` (ball
+registration into the first view's frame), ``ground`` (world frame from the ground), ``refine`` (gated
+ICP), ``metrics`` (per view and merged: the paper's V1, V2 and V1+V2 modes) and ``done``.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from canopy_core.backproject import ViewCloud, backproject
+from canopy_core.balls import SphereFit, detect_balls
+from canopy_core.capture import Capture, CaptureManifest, View, load_capture
+from canopy_core.config import FilterConfig, MeasureConfig
+from canopy_core.errors import MeasurementError, RegistrationFailed
+from canopy_core.filters import reliable_depth_mask, statistical_inliers
+from canopy_core.ground import GroundFrame, fit_ground_frame, horizontal_distance
+from canopy_core.metrics import CanopyMetrics, canopy_metrics
+from canopy_core.refine import IcpRefinement, refine_views
+from canopy_core.register import apply, register_by_balls
+
+__all__ = ["STAGES", "Measurement", "Progress", "ViewDiagnostics", "config_for", "filtered_cloud", "measure"]
+
+Progress = Callable[[str, float], None]
+"""Called with a stage name and the overall progress in [0, 1] as each stage starts."""
+
+STAGES = ("load", "filter", "balls", "register", "ground", "refine", "metrics", "done")
+
+MERGED = "merged"
+_MAX_BALL_RESIDUAL_M = 0.03
+"""Ball centres that disagree between views by more than this (RMS) mean a ball moved or was mistaken."""
+_GROUND_SAMPLE = 60_000
+_TREE_CLEARANCE_M = 0.12
+"""Tree points start this high above the ground: below it are the ground, grass and the balls."""
+
+
+@dataclass(frozen=True)
+class ViewDiagnostics:
+    """What happened to one view: points kept, balls found, how it registered."""
+
+    view: str
+    depth_pixels: int
+    flying_pixels_removed: int
+    roi_points: int
+    outliers_removed: int
+    tree_points: int
+    balls: dict[str, SphereFit]
+    ball_residual_m: float
+    world_from_view: np.ndarray
+    icp: IcpRefinement | None
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready dict."""
+        return {
+            "depth_pixels": self.depth_pixels,
+            "flying_pixels_removed": self.flying_pixels_removed,
+            "roi_points": self.roi_points,
+            "outliers_removed": self.outliers_removed,
+            "tree_points": self.tree_points,
+            "balls": {color: fit.to_dict() for color, fit in self.balls.items()},
+            "ball_residual_m": self.ball_residual_m,
+            "world_from_view": self.world_from_view.round(6).tolist(),
+            "icp": self.icp.to_dict() if self.icp else None,
+        }
+
+
+@dataclass(frozen=True)
+class Measurement:
+    """The result of measuring one capture: metrics per mode, diagnostics, the fused cloud, the config."""
+
+    manifest: CaptureManifest
+    modes: dict[str, CanopyMetrics]
+    views: tuple[ViewDiagnostics, ...]
+    ground: GroundFrame
+    config: MeasureConfig
+    cloud_points_m: np.ndarray = field(repr=False)
+    cloud_colors_rgb: np.ndarray = field(repr=False)
+    timings_s: dict[str, float]
+
+    @property
+    def merged(self) -> CanopyMetrics:
+        """The metrics of all views merged (V1+V2 in the paper)."""
+        return self.modes[MERGED]
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON document of ``canopy measure --json``: merged metrics on top, then modes and diagnostics."""
+        ground = self.ground
+        return {
+            **self.merged.to_dict(),
+            "capture": {
+                key: getattr(self.manifest, key) for key in ("orchard", "row", "tree", "captured_at", "sensor")
+            },
+            "modes": {name: metrics.to_dict() for name, metrics in self.modes.items()},
+            "registration": {
+                "method": "balls+icp" if any(v.icp and v.icp.accepted for v in self.views) else "balls",
+                "ground": {
+                    "points": ground.ground_points,
+                    "rms_m": ground.ground_rms_m,
+                    "tilt_from_ball_plane_deg": ground.tilt_from_ball_plane_deg,
+                    "trunk_xy_m": list(ground.trunk_xy_m),
+                    "trunk_points": ground.trunk_points,
+                    "ground_height_at_trunk_m": ground.ground_height_at_trunk_m,
+                },
+                "views": {view.view: view.to_dict() for view in self.views},
+            },
+            "config": self.config.model_dump(),
+            "timings_s": self.timings_s,
+        }
+
+
+def config_for(manifest: CaptureManifest, overrides: dict[str, Any] | None = None) -> MeasureConfig:
+    """The measurement settings of a capture: defaults, then capture.json's balls and ROI, then overrides."""
+    from_capture: dict[str, Any] = {"balls": manifest.calibration_balls.model_dump()}
+    if manifest.roi is not None:
+        from_capture["roi"] = manifest.roi.model_dump()
+    config = MeasureConfig().merged(from_capture)
+    return config.merged(overrides) if overrides else config
+
+
+class _Stages:
+    """Reports stage starts to the progress callback and times each stage."""
+
+    def __init__(self, progress: Progress | None) -> None:
+        self._progress = progress
+        self._name: str | None = None
+        self._started = time.perf_counter()
+        self.timings_s: dict[str, float] = {}
+
+    def start(self, name: str) -> None:
+        now = time.perf_counter()
+        if self._name is not None:
+            self.timings_s[self._name] = round(now - self._started, 4)
+        self._name, self._started = name, now
+        if self._progress is not None:
+            self._progress(name, STAGES.index(name) / (len(STAGES) - 1))
+
+
+def measure(
+    capture: Capture | str | Path,
+    *,
+    overrides: dict[str, Any] | None = None,
+    progress: Progress | None = None,
+) -> Measurement:
+    """Measure the tree of one capture.
+
+    Parameters
+    ----------
+    capture
+        A loaded :class:`Capture` or the path of a capture folder.
+    overrides
+        Nested settings overriding the defaults and the capture's own (see :class:`MeasureConfig`).
+    progress
+        Called with each stage's name and the overall progress in [0, 1].
+
+    Raises
+    ------
+    CaptureError
+        The capture folder is invalid.
+    BallNotFound
+        A ball is missing or implausible in a view (names the view and colour).
+    RegistrationFailed
+        The balls do not bring the views together.
+    MeasurementError
+        Nothing of the tree is left to measure.
+    """
+    stages = _Stages(progress)
+    stages.start("load")
+    if not isinstance(capture, Capture):
+        capture = load_capture(capture)
+    config = config_for(capture.manifest, overrides)
+
+    stages.start("filter")
+    clouds = [filtered_cloud(view, config.filters) for view in capture.views]
+    removed = [int(np.count_nonzero(v.depth_raw)) - len(c) for v, c in zip(capture.views, clouds, strict=True)]
+
+    stages.start("balls")
+    balls = [detect_balls(cloud, config.balls) for cloud in clouds]
+
+    stages.start("register")
+    colors = config.balls.colors
+    if len(colors) < 3:
+        raise RegistrationFailed(
+            f"{len(colors)} ball colour(s) configured; registration and the ground frame need three",
+            field="calibration_balls.colors",
+        )
+    centres = [np.array([found[color].center_m for color in colors]) for found in balls]
+    view_to_reference = [register_by_balls(c, centres[0]) for c in centres]
+    residuals = [_ball_residual(pose, c, centres[0]) for pose, c in zip(view_to_reference, centres, strict=True)]
+    for view, residual in zip(capture.views, residuals, strict=True):
+        if residual > _MAX_BALL_RESIDUAL_M:
+            raise RegistrationFailed(
+                f"ball centres disagree with the first view's by {residual * 1000:.0f} mm RMS after "
+                "registration",
+                view=view.name,
+                hint="a ball was moved between views, or another object was taken for a ball",
+            )
+
+    stages.start("ground")
+    ground = _ground_frame(clouds, view_to_reference, centres[0], config)
+    world_from_view = [ground.world_from_reference @ pose for pose in view_to_reference]
+    roi_points, roi_colors, outliers = [], [], []
+    for cloud, pose in zip(clouds, world_from_view, strict=True):
+        points, colors_rgb, dropped = _roi_cloud(cloud, pose, config)
+        roi_points.append(points)
+        roi_colors.append(colors_rgb)
+        outliers.append(dropped)
+
+    stages.start("refine")
+    icp_reports: list[IcpRefinement | None] = [None] * len(clouds)
+    if config.icp.enabled and len(clouds) > 1:
+        corrections, reports = refine_views([v.name for v in capture.views], roi_points, config=config.icp)
+        roi_points = [apply(c, p) for c, p in zip(corrections, roi_points, strict=True)]
+        world_from_view = [c @ pose for c, pose in zip(corrections, world_from_view, strict=True)]
+        icp_reports = [None, *reports]
+
+    stages.start("metrics")
+    balls_world = apply(ground.world_from_reference, centres[0])
+    tree_masks = [_tree_mask(points, balls_world, config) for points in roi_points]
+    trunk_xy = np.array(ground.trunk_xy_m)
+    modes: dict[str, CanopyMetrics] = {}
+    for view, points, mask in zip(capture.views, roi_points, tree_masks, strict=True):
+        modes[view.name] = _metrics_or_fail(points[mask], trunk_xy, config, view=view.name)
+    merged_tree = np.concatenate([points[mask] for points, mask in zip(roi_points, tree_masks, strict=True)])
+    modes[MERGED] = _metrics_or_fail(merged_tree, trunk_xy, config, view=None)
+
+    diagnostics = tuple(
+        ViewDiagnostics(
+            view=view.name,
+            depth_pixels=int(np.count_nonzero(view.depth_raw)),
+            flying_pixels_removed=removed[i],
+            roi_points=int(roi_points[i].shape[0]),
+            outliers_removed=outliers[i],
+            tree_points=int(np.count_nonzero(tree_masks[i])),
+            balls=balls[i],
+            ball_residual_m=residuals[i],
+            world_from_view=world_from_view[i],
+            icp=icp_reports[i],
+        )
+        for i, view in enumerate(capture.views)
+    )
+    stages.start("done")
+    return Measurement(
+        manifest=capture.manifest,
+        modes=modes,
+        views=diagnostics,
+        ground=ground,
+        config=config,
+        cloud_points_m=np.concatenate(roi_points),
+        cloud_colors_rgb=np.concatenate(roi_colors),
+        timings_s=stages.timings_s,
+    )
+
+
+def filtered_cloud(view: View, filters: FilterConfig) -> ViewCloud:
+    """A view's points without out-of-range and flying pixels, in its depth camera's frame."""
+    keep = reliable_depth_mask(
+        view.depth_m,
+        min_depth_m=filters.min_depth_m,
+        max_depth_m=filters.max_depth_m,
+        window_px=filters.flying_window_px,
+        jump_ratio=filters.flying_jump_ratio,
+        jump_min_m=filters.flying_jump_min_m,
+    )
+    return backproject(view, keep=keep)
+
+
+def _ball_residual(pose: np.ndarray, centres: np.ndarray, reference: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.sum((apply(pose, centres) - reference) ** 2, axis=1))))
+
+
+def _ground_frame(
+    clouds: list[ViewCloud], view_to_reference: list[np.ndarray], ball_centres: np.ndarray, config: MeasureConfig
+) -> GroundFrame:
+    """The world frame, fitted on a thinned sample of all views' points in the reference frame."""
+    rng = np.random.default_rng(0)
+    share = max(1, _GROUND_SAMPLE // len(clouds))
+    sample = []
+    for cloud, pose in zip(clouds, view_to_reference, strict=True):
+        pick = rng.choice(len(cloud), size=min(share, len(cloud)), replace=False)
+        sample.append(apply(pose, cloud.points_m[pick]))
+    return fit_ground_frame(
+        np.concatenate(sample),
+        ball_centres,
+        ball_radius_m=config.balls.radius_m,
+        up_hint=np.array([0.0, -1.0, 0.0]),
+        forward_hint=np.array([0.0, 0.0, 1.0]),
+        search_radius_m=config.roi.radius_m,
+        config=config.ground,
+    )
+
+
+def _roi_cloud(cloud: ViewCloud, world_from_view: np.ndarray, config: MeasureConfig) -> tuple[np.ndarray, np.ndarray, int]:
+    """A view's points inside the region of interest, in the world frame, without statistical outliers."""
+    world = apply(world_from_view, cloud.points_m)
+    up = np.array([0.0, 0.0, 1.0])
+    inside = (horizontal_distance(world, np.zeros(3), up) < config.roi.radius_m) & (
+        world[:, 2] < config.roi.max_height_m
+    )
+    inside &= world[:, 2] > -config.ground.search_band_m
+    world, colors = world[inside], cloud.colors_rgb[inside]
+    kept = statistical_inliers(
+        world, neighbors=config.filters.outlier_neighbors, std_ratio=config.filters.outlier_std_ratio
+    )
+    return world[kept], colors[kept], int(world.shape[0] - kept.size)
+
+
+def _tree_mask(points_world: np.ndarray, balls_world: np.ndarray, config: MeasureConfig) -> np.ndarray:
+    """Points of the tree: above the ground clearance and not on a ball."""
+    mask = points_world[:, 2] > _TREE_CLEARANCE_M
+    for centre in balls_world:
+        mask &= np.linalg.norm(points_world - centre, axis=1) > config.balls.radius_m * 1.5 + 0.02
+    return mask
+
+
+def _metrics_or_fail(points: np.ndarray, trunk_xy: np.ndarray, config: MeasureConfig, *, view: str | None) -> CanopyMetrics:
+    if points.shape[0] < 50:
+        raise MeasurementError(
+            f"only {points.shape[0]} tree points inside the region of interest",
+            view=view,
+            hint="check that the tree stands among the balls and inside roi.radius_m",
+        )
+    return canopy_metrics(points, trunk_xy_m=trunk_xy, config=config.metrics)
