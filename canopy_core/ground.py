@@ -164,13 +164,18 @@ def _trunk_position(
 
 
 def _local_ground_height(ground_world: np.ndarray, trunk_xy: np.ndarray, radius_m: float) -> float:
-    """Ground height at the trunk: a local plane through the ground points around it, read at its centre."""
+    """Ground height at the trunk: a quadratic surface through the ground points around it, read at its centre.
+
+    A plane would carry the curvature of a bump or a ridge under the trunk into the height (about a
+    centimetre for a 3 cm bump); a quadratic follows it.
+    """
     offset = ground_world[:, :2] - trunk_xy
     distance = np.linalg.norm(offset, axis=1)
     near = (distance > _TRUNK_EXCLUSION_M) & (distance < radius_m)
-    if np.count_nonzero(near) < 20:
+    if np.count_nonzero(near) < 50:
         return float(np.median(ground_world[:, 2])) if ground_world.size else 0.0
-    design = np.column_stack([np.ones(np.count_nonzero(near)), offset[near]])
+    x, y = offset[near, 0], offset[near, 1]
+    design = np.column_stack([np.ones_like(x), x, y, x * x, x * y, y * y])
     coefficients, *_ = np.linalg.lstsq(design, ground_world[near, 2], rcond=None)
     return float(coefficients[0])
 

@@ -29,8 +29,8 @@ __all__ = [
     "voxel_volume",
 ]
 
-_TOP_SLICE_M = 0.5
-"""The robust top is sought among the points this close to the highest one."""
+_TOP_BATCH = 256
+"""Candidates for the robust top are checked this many at a time, highest first."""
 
 
 @dataclass(frozen=True)
@@ -64,12 +64,15 @@ def canopy_height(
     a lone insect, dust speck or flying pixel above the crown does not raise it.
     """
     z = points_m[:, 2]
-    top = np.flatnonzero(z > z.max() - _TOP_SLICE_M)
-    top = top[np.argsort(-z[top])]
-    tree = cKDTree(points_m[top])
-    neighbours = tree.query_ball_point(points_m[top], r=support_radius_m, return_length=True) - 1
-    supported = np.flatnonzero(neighbours >= support_points)
-    z_max = z[top[supported[0]]] if supported.size else z[top].max()
+    order = np.argsort(-z)
+    tree = cKDTree(points_m)
+    for start in range(0, order.size, _TOP_BATCH):
+        batch = order[start : start + _TOP_BATCH]
+        neighbours = tree.query_ball_point(points_m[batch], r=support_radius_m, return_length=True) - 1
+        supported = np.flatnonzero(neighbours >= support_points)
+        if supported.size:
+            return float(z[batch[supported[0]]] - ground_z_m)
+    z_max = z.max()
     return float(z_max - ground_z_m)
 
 

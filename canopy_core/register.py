@@ -15,6 +15,7 @@ Poses are 4x4 numpy arrays mapping points of one frame into another (``target_fr
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 __all__ = [
     "apply",
@@ -46,8 +47,8 @@ def invert(transform: np.ndarray) -> np.ndarray:
 def pose_change(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
     """How far pose ``b`` is from pose ``a``: ``(translation_m, rotation_deg)`` of ``b @ inv(a)``."""
     delta = b @ invert(a)
-    cos_angle = np.clip((np.trace(delta[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)
-    return float(np.linalg.norm(delta[:3, 3])), float(np.degrees(np.arccos(cos_angle)))
+    angle = Rotation.from_matrix(delta[:3, :3]).magnitude()
+    return float(np.linalg.norm(delta[:3, 3])), float(np.degrees(angle))
 
 
 def register_by_balls(source_centres: np.ndarray, target_centres: np.ndarray) -> np.ndarray:

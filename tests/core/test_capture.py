@@ -1,0 +1,184 @@
+"""Loading a capture folder: a valid one loads; every defect is one CaptureError naming view, file, field."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from canopy_core.capture import load_capture
+from canopy_core.errors import CaptureError
+
+from .conftest import CAMERA
+
+
+def _edit_json(path: Path, change) -> None:
+    document = json.loads(path.read_text())
+    change(document)
+    path.write_text(json.dumps(document))
+
+
+def _error(capture_dir: Path) -> CaptureError:
+    with pytest.raises(CaptureError) as info:
+        load_capture(capture_dir)
+    return info.value
+
+
+def test_valid_registered_capture_loads_with_depth_in_metres(capture_dir: Path) -> None:
+    capture = load_capture(capture_dir)
+    assert [view.name for view in capture.views] == ["views/1", "views/2"]
+    view = capture.views[0]
+    assert view.depth_raw.dtype == np.uint16 and view.depth_raw.shape == (48, 64)
+    assert view.color_rgb.shape == (48, 64, 3) and view.color_rgb.dtype == np.uint8
+    assert view.camera.registered
+    assert float(view.depth_m[0, 0]) == pytest.approx(2.0)
+    assert capture.manifest.calibration_balls.diameter_m == 0.10
+
+
+def test_native_pair_with_larger_colour_image_and_extrinsics_loads(capture_dir: Path) -> None:
+    camera = {
+        **CAMERA,
+        "color_intrinsics": {"width": 128, "height": 96, "fx": 100.0, "fy": 100.0, "cx": 64.0, "cy": 48.0},
+        "depth_to_color": [[1, 0, 0, 0.052], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]],
+    }
+    (capture_dir / "views/1/camera.json").write_text(json.dumps(camera))
+    Image.fromarray(np.zeros((96, 128, 3), dtype=np.uint8)).save(capture_dir / "views/1/color.png")
+    view = load_capture(capture_dir).views[0]
+    assert not view.camera.registered
+    assert view.camera.depth_to_color[0, 3] == pytest.approx(0.052)
+
+
+def test_jpeg_colour_is_accepted(capture_dir: Path) -> None:
+    (capture_dir / "views/2/color.png").unlink()
+    Image.fromarray(np.full((48, 64, 3), 90, dtype=np.uint8)).save(capture_dir / "views/2/color.jpg")
+    assert load_capture(capture_dir).views[1].color_rgb.shape == (48, 64, 3)
+
+
+def test_missing_depth_file_names_view_and_file(capture_dir: Path) -> None:
+    (capture_dir / "views/2/depth.png").unlink()
+    error = _error(capture_dir)
+    assert (error.view, error.file) == ("views/2", "views/2/depth.png")
+    assert "missing" in error.message
+
+
+def test_missing_colour_file_names_view(capture_dir: Path) -> None:
+    (capture_dir / "views/1/color.png").unlink()
+    error = _error(capture_dir)
+    assert error.view == "views/1" and "colour image is missing" in error.message
+
+
+def test_missing_capture_json_is_named(capture_dir: Path) -> None:
+    (capture_dir / "capture.json").unlink()
+    assert _error(capture_dir).file == "capture.json"
+
+
+def test_eight_bit_depth_is_refused_as_not_16_bit(capture_dir: Path) -> None:
+    Image.fromarray(np.full((48, 64), 200, dtype=np.uint8)).save(capture_dir / "views/1/depth.png")
+    error = _error(capture_dir)
+    assert error.file == "views/1/depth.png" and "16-bit single-channel" in error.message
+
+
+def test_three_channel_depth_is_refused(capture_dir: Path) -> None:
+    Image.fromarray(np.zeros((48, 64, 3), dtype=np.uint8)).save(capture_dir / "views/1/depth.png")
+    assert "16-bit single-channel" in _error(capture_dir).message
+
+
+def test_depth_size_disagreeing_with_camera_json_is_refused(capture_dir: Path) -> None:
+    Image.fromarray(np.full((40, 64), 1000, dtype=np.uint16)).save(capture_dir / "views/2/depth.png")
+    error = _error(capture_dir)
+    assert error.file == "views/2/depth.png" and "64x40" in error.message and "64x48" in error.message
+
+
+def test_colour_size_disagreeing_with_camera_json_is_refused(capture_dir: Path) -> None:
+    Image.fromarray(np.zeros((48, 60, 3), dtype=np.uint8)).save(capture_dir / "views/1/color.png")
+    error = _error(capture_dir)
+    assert error.file == "views/1/color.png" and "60x48" in error.message
+
+
+def test_depth_without_any_valid_pixel_is_refused(capture_dir: Path) -> None:
+    Image.fromarray(np.zeros((48, 64), dtype=np.uint16)).save(capture_dir / "views/1/depth.png")
+    assert "no valid pixel" in _error(capture_dir).message
+
+
+def test_truncated_png_is_refused_as_corrupt(capture_dir: Path) -> None:
+    path = capture_dir / "views/1/depth.png"
+    path.write_bytes(path.read_bytes()[:60])
+    error = _error(capture_dir)
+    assert error.file == "views/1/depth.png"
+    assert "truncated" in error.message or "not a readable" in error.message
+
+
+def test_garbage_colour_file_is_refused(capture_dir: Path) -> None:
+    (capture_dir / "views/2/color.png").write_bytes(b"this is not an image")
+    error = _error(capture_dir)
+    assert error.file == "views/2/color.png" and "not a readable" in error.message
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "expected"),
+    [
+        ("fx", 0.0, "greater than 0"),
+        ("fy", -365.0, "greater than 0"),
+        ("cx", float("nan"), "not a finite number"),
+        ("fx", float("inf"), "not a finite number"),
+    ],
+)
+def test_bad_intrinsics_name_the_field(capture_dir: Path, field: str, value: float, expected: str) -> None:
+    path = capture_dir / "views/2/camera.json"
+    document = json.loads(path.read_text())
+    document["depth_intrinsics"][field] = value
+    path.write_text(json.dumps(document))  # json writes NaN/Infinity, as a careless exporter would
+    error = _error(capture_dir)
+    assert error.file == "views/2/camera.json" and error.view == "views/2"
+    assert expected in error.message
+    if "finite" not in expected:
+        assert error.field == f"depth_intrinsics.{field}"
+
+
+def test_missing_intrinsics_field_is_named(capture_dir: Path) -> None:
+    _edit_json(capture_dir / "views/1/camera.json", lambda d: d["depth_intrinsics"].pop("fy"))
+    error = _error(capture_dir)
+    assert error.field == "depth_intrinsics.fy" and "required" in error.message.lower()
+
+
+def test_colour_intrinsics_without_extrinsics_is_refused(capture_dir: Path) -> None:
+    _edit_json(
+        capture_dir / "views/1/camera.json",
+        lambda d: d.update(color_intrinsics={"width": 64, "height": 48, "fx": 1, "fy": 1, "cx": 0, "cy": 0}),
+    )
+    assert "given together" in _error(capture_dir).message
+
+
+def test_depth_to_color_that_is_not_rigid_is_refused(capture_dir: Path) -> None:
+    def change(document: dict) -> None:
+        document["color_intrinsics"] = dict(document["depth_intrinsics"])
+        document["depth_to_color"] = [[2, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]
+
+    _edit_json(capture_dir / "views/1/camera.json", change)
+    assert "not a rotation" in _error(capture_dir).message
+
+
+@pytest.mark.parametrize("bad", ["../outside", "/etc/views", "views/../x", "views/a/b", "other/1"])
+def test_view_path_outside_the_capture_is_refused(capture_dir: Path, bad: str) -> None:
+    _edit_json(capture_dir / "capture.json", lambda d: d.update(views=[bad]))
+    error = _error(capture_dir)
+    assert error.file == "capture.json" and error.field == "views"
+
+
+def test_unknown_format_version_is_refused(capture_dir: Path) -> None:
+    _edit_json(capture_dir / "capture.json", lambda d: d.update(format="canopy-capture/9"))
+    error = _error(capture_dir)
+    assert error.field == "format" and "canopy-capture/1" in error.message
+
+
+def test_colour_without_default_range_needs_an_hsv_override(capture_dir: Path) -> None:
+    _edit_json(capture_dir / "capture.json", lambda d: d["calibration_balls"].update(colors=["red", "teal"]))
+    assert "teal" in _error(capture_dir).message
+
+
+def test_oversized_image_is_refused_from_its_header(capture_dir: Path) -> None:
+    with pytest.raises(CaptureError, match="exceeds the limit"):
+        load_capture(capture_dir, max_pixels=1000)

@@ -1,0 +1,65 @@
+"""The world frame: up from the ground, not from balls resting on bumps; z = 0 at the trunk's foot."""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from canopy_core.config import GroundConfig
+from canopy_core.ground import fit_ground_frame
+from canopy_core.register import apply, invert
+
+
+def _bumpy_ground(xy: np.ndarray) -> np.ndarray:
+    """Height of an uneven orchard floor, 0 at the trunk (origin): a slight slope and bumps of ~3 cm."""
+    x, y = xy[:, 0], xy[:, 1]
+    return 0.03 * np.sin(3.1 * x + 0.4) * np.cos(2.3 * y) - 0.03 * np.sin(0.4) + 0.005 * x
+
+
+def _scene(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Ground, trunk and crown points in a world frame with the trunk at (0.2, -0.1), and ball centres."""
+    ground_xy = rng.uniform(-2.5, 2.5, size=(40000, 2))
+    ground = np.column_stack([ground_xy, _bumpy_ground(ground_xy)])
+    trunk_xy = np.array([0.2, -0.1])
+    angle = rng.uniform(0, 2 * np.pi, 3000)
+    trunk = np.column_stack(
+        [trunk_xy[0] + 0.07 * np.cos(angle), trunk_xy[1] + 0.07 * np.sin(angle), rng.uniform(0, 0.8, 3000)]
+    )
+    crown = rng.normal([0.2, -0.1, 1.8], [0.5, 0.5, 0.4], size=(20000, 3))
+    ball_xy = trunk_xy + 0.6 * np.column_stack([np.cos([0.3, 2.4, 4.4]), np.sin([0.3, 2.4, 4.4])])
+    balls = np.column_stack([ball_xy, _bumpy_ground(ball_xy) + 0.05])
+    ground_height_at_trunk = _bumpy_ground(trunk_xy[None, :])[0]
+    ground[:, 2] -= ground_height_at_trunk
+    balls[:, 2] -= ground_height_at_trunk
+    return np.vstack([ground, trunk, crown]), balls, trunk_xy
+
+
+def _camera_from_world() -> np.ndarray:
+    """A level camera 1.2 m high, 3 m from the trunk on the -y side, looking along +y (OpenCV axes)."""
+    world_from_camera = np.eye(4)
+    world_from_camera[:3, :3] = np.column_stack([[1, 0, 0], [0, 0, -1], [0, 1, 0]])
+    world_from_camera[:3, :3] = Rotation.from_euler("x", 4, degrees=True).as_matrix() @ world_from_camera[:3, :3]
+    world_from_camera[:3, 3] = [0.1, -3.0, 1.2]
+    return invert(world_from_camera)
+
+
+def test_world_frame_is_level_with_the_ground_and_zero_at_the_trunk_foot() -> None:
+    points_world, balls_world, trunk_xy = _scene(np.random.default_rng(0))
+    camera_from_world = _camera_from_world()
+    frame = fit_ground_frame(
+        apply(camera_from_world, points_world),
+        apply(camera_from_world, balls_world),
+        ball_radius_m=0.05,
+        up_hint=np.array([0.0, -1.0, 0.0]),
+        forward_hint=np.array([0.0, 0.0, 1.0]),
+        search_radius_m=1.5,
+        config=GroundConfig(),
+    )
+    recovered_from_world = frame.world_from_reference @ camera_from_world
+    up_error_deg = np.degrees(np.arccos(recovered_from_world[2, 2]))
+    assert up_error_deg < 0.3  # the ground's slope is 0.3°: the balls' plane alone is ~3° off
+    assert frame.tilt_from_ball_plane_deg > 1.0
+    trunk_foot = apply(recovered_from_world, np.array([[trunk_xy[0], trunk_xy[1], 0.0]]))[0]
+    assert abs(trunk_foot[2]) < 0.01
+    assert np.linalg.norm(np.array(frame.trunk_xy_m) - trunk_foot[:2]) < 0.03
+    assert recovered_from_world[1, 1] > 0.99  # y across the row, away from the camera
