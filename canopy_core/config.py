@@ -86,6 +86,9 @@ class RoiConfig(_Section):
 
     radius_m: float = Field(1.5, gt=0.0, le=20.0, description="Cylinder radius around the balls' axis, m.")
     max_height_m: float = Field(5.0, gt=0.0, le=50.0, description="Cylinder top above the ground, metres.")
+    link_m: float = Field(
+        0.15, gt=0.0, description="A gap wider than this separates the tree from other things in the ROI."
+    )
 
 
 class FilterConfig(_Section):

@@ -26,6 +26,7 @@ from canopy_core.ground import GroundFrame, fit_ground_frame, horizontal_distanc
 from canopy_core.metrics import CanopyMetrics, canopy_metrics
 from canopy_core.refine import IcpRefinement, refine_views
 from canopy_core.register import apply, register_by_balls
+from canopy_core.segment import tree_component
 
 __all__ = ["STAGES", "Measurement", "Progress", "ViewDiagnostics", "config_for", "filtered_cloud", "measure"]
 
@@ -223,8 +224,8 @@ def measure(
 
     stages.start("metrics")
     balls_world = apply(ground.world_from_reference, centres[0])
-    tree_masks = [_tree_mask(points, balls_world, config) for points in roi_points]
     trunk_xy = np.array(ground.trunk_xy_m)
+    tree_masks = _tree_masks(roi_points, balls_world, trunk_xy, config)
     modes: dict[str, CanopyMetrics] = {}
     for view, points, mask in zip(capture.views, roi_points, tree_masks, strict=True):
         modes[view.name] = _metrics_or_fail(points[mask], trunk_xy, config, view=view.name)
@@ -312,12 +313,25 @@ def _roi_cloud(cloud: ViewCloud, world_from_view: np.ndarray, config: MeasureCon
     return world[kept], colors[kept], int(world.shape[0] - kept.size)
 
 
-def _tree_mask(points_world: np.ndarray, balls_world: np.ndarray, config: MeasureConfig) -> np.ndarray:
-    """Points of the tree: above the ground clearance and not on a ball."""
-    mask = points_world[:, 2] > _TREE_CLEARANCE_M
-    for centre in balls_world:
-        mask &= np.linalg.norm(points_world - centre, axis=1) > config.balls.radius_m * 1.5 + 0.02
-    return mask
+def _tree_masks(
+    roi_points: list[np.ndarray], balls_world: np.ndarray, trunk_xy: np.ndarray, config: MeasureConfig
+) -> list[np.ndarray]:
+    """Per view, the points of the tree: above the ground clearance, off the balls, connected to the trunk.
+
+    Connectivity is decided on all views together, where the tree is most complete.
+    """
+    masks = []
+    for points in roi_points:
+        mask = points[:, 2] > _TREE_CLEARANCE_M
+        for centre in balls_world:
+            mask &= np.linalg.norm(points - centre, axis=1) > config.balls.radius_m * 1.5 + 0.02
+        masks.append(mask)
+    candidates = np.concatenate([points[mask] for points, mask in zip(roi_points, masks, strict=True)])
+    connected = tree_component(candidates, trunk_xy, link_m=config.roi.link_m)
+    splits = np.cumsum([np.count_nonzero(mask) for mask in masks])[:-1]
+    for mask, keep in zip(masks, np.split(connected, splits), strict=True):
+        mask[mask] = keep
+    return masks
 
 
 def _metrics_or_fail(points: np.ndarray, trunk_xy: np.ndarray, config: MeasureConfig, *, view: str | None) -> CanopyMetrics:

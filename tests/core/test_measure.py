@@ -1,0 +1,102 @@
+"""The whole pipeline on simulated captures: metrics against ground truth, modes, stages, failures."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from PIL import Image
+
+from canopy_core.errors import BallNotFound
+from canopy_core.measure import STAGES, Measurement, measure
+from canopy_core.simulate import simulate_capture
+
+
+def _truth(capture: Path) -> dict:
+    return json.loads((capture / "ground_truth.json").read_text())
+
+
+@pytest.fixture(scope="module")
+def native_capture(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return simulate_capture(tmp_path_factory.mktemp("native") / "tree", seed=11, n_views=2, native_color=True)
+
+
+@pytest.fixture(scope="module")
+def native_result(native_capture: Path) -> Measurement:
+    return measure(native_capture)
+
+
+def test_merged_height_width_thickness_match_ground_truth(native_capture: Path, native_result: Measurement) -> None:
+    truth = _truth(native_capture)
+    merged = native_result.merged
+    assert merged.height_m == pytest.approx(truth["height_m"], rel=0.02)
+    assert merged.width_m == pytest.approx(truth["width_m"], rel=0.03)
+    assert merged.thickness_m == pytest.approx(truth["thickness_m"], rel=0.03)
+
+
+def test_every_view_and_the_merged_views_are_measured(native_result: Measurement) -> None:
+    assert list(native_result.modes) == ["views/1", "views/2", "merged"]
+    merged, single = native_result.modes["merged"], native_result.modes["views/1"]
+    assert merged.points > single.points
+    assert merged.width_m >= single.width_m - 0.01
+
+
+def test_ball_registration_agrees_between_views(native_result: Measurement) -> None:
+    for view in native_result.views:
+        assert set(view.balls) == {"red", "yellow", "blue"}
+        assert view.ball_residual_m < 0.01
+
+
+def test_icp_is_reported_with_correspondence_percentiles(native_result: Measurement) -> None:
+    icp = native_result.views[1].icp
+    assert icp is not None and native_result.views[0].icp is None
+    assert 0 < icp.before.fitness <= 1 and icp.before.distance_p50_m <= icp.before.distance_p90_m
+    if icp.accepted:
+        assert icp.after.distance_p50_m < icp.before.distance_p50_m
+
+
+def test_progress_names_every_stage_in_order(native_capture: Path) -> None:
+    seen: list[tuple[str, float]] = []
+    measure(native_capture, progress=lambda stage, fraction: seen.append((stage, fraction)))
+    assert [stage for stage, _ in seen] == list(STAGES)
+    fractions = [fraction for _, fraction in seen]
+    assert fractions == sorted(fractions) and fractions[0] == 0.0 and fractions[-1] == 1.0
+
+
+def test_result_document_echoes_the_config_and_is_json(native_result: Measurement) -> None:
+    document = json.loads(json.dumps(native_result.to_dict()))
+    assert {"height_m", "width_m", "thickness_m", "modes", "registration", "config"} <= set(document)
+    assert document["config"]["balls"]["diameter_m"] == 0.10
+    assert set(document["registration"]["views"]) == {"views/1", "views/2"}
+
+
+def test_registered_colour_capture_is_measured_too(tmp_path: Path) -> None:
+    capture = simulate_capture(tmp_path / "tree", seed=12, n_views=2, native_color=False)
+    result = measure(capture)
+    assert result.merged.height_m == pytest.approx(_truth(capture)["height_m"], rel=0.03)
+
+
+def test_three_views_are_registered_together(tmp_path: Path) -> None:
+    capture = simulate_capture(tmp_path / "tree", seed=13, n_views=3)
+    result = measure(capture)
+    assert list(result.modes) == ["views/1", "views/2", "views/3", "merged"]
+    assert all(view.icp is not None for view in result.views[1:])
+    assert result.merged.width_m == pytest.approx(_truth(capture)["width_m"], rel=0.04)
+
+
+def test_ball_painted_over_fails_naming_view_and_colour(native_capture: Path, tmp_path: Path) -> None:
+    import shutil
+
+    broken = Path(shutil.copytree(native_capture, tmp_path / "broken"))
+    color_file = next((broken / "views/2").glob("color.*"))
+    rgb = np.asarray(Image.open(color_file).convert("RGB")).copy()
+    hsv = cv2.cvtColor(rgb, cv2.COLOR_RGB2HSV)
+    blue = (hsv[..., 0] > 95) & (hsv[..., 0] < 135) & (hsv[..., 1] > 80)
+    rgb[blue] = (120, 110, 100)
+    Image.fromarray(rgb).save(color_file)
+    with pytest.raises(BallNotFound) as info:
+        measure(broken)
+    assert info.value.view == "views/2" and info.value.color == "blue"
