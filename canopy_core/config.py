@@ -55,7 +55,7 @@ class BallConfig(_Section):
         0.008, gt=0.0, description="A point is a sphere inlier when its distance to the surface is below this."
     )
     max_radius_error: float = Field(
-        0.25, gt=0.0, lt=1.0, description="Largest relative difference of the fitted and the true radius."
+        0.15, gt=0.0, lt=1.0, description="Largest relative difference of the fitted and the true radius."
     )
     max_rms_m: float = Field(0.012, gt=0.0, description="Largest RMS distance of inliers to the fitted sphere.")
     ransac_iterations: int = Field(300, ge=10)

@@ -27,10 +27,12 @@ def reliable_depth_mask(
     """Pixels with a trustworthy depth reading: in range and not flying.
 
     A pixel is flying when its ``(2 * window_px + 1)``-square window holds a reading nearer than it by more
-    than ``jump_min_m + jump_ratio * depth`` *and* one farther than it by as much: it lies between a
-    foreground and a background surface, where no real surface is. A true silhouette pixel of the foreground
-    has nothing nearer around it and is kept, so the crown's outline is not eroded; a background pixel next
-    to a silhouette has nothing farther and is kept too.
+    than ``jump_min_m + jump_ratio * depth`` *and* one farther than it by as much, or none at all: it lies
+    between a foreground and a background surface, where no real surface is. A missing reading counts as
+    far, because the mix of a leaf and a background beyond the sensor's range lands in between with no
+    background reading beside it. A true silhouette pixel of the foreground has nothing nearer around it
+    and is kept, so the crown's outline is not eroded; a background pixel next to a silhouette has nothing
+    farther and is kept too.
 
     Parameters
     ----------
@@ -52,7 +54,7 @@ def reliable_depth_mask(
     valid = (depth > min_depth_m) & (depth < max_depth_m)
     kernel = np.ones((2 * window_px + 1, 2 * window_px + 1), dtype=np.uint8)
     nearest = cv2.erode(np.where(valid, depth, np.float32(np.inf)), kernel, borderType=cv2.BORDER_REPLICATE)
-    farthest = cv2.dilate(np.where(valid, depth, np.float32(0.0)), kernel, borderType=cv2.BORDER_REPLICATE)
+    farthest = cv2.dilate(np.where(valid, depth, np.float32(np.inf)), kernel, borderType=cv2.BORDER_REPLICATE)
     step = np.float32(jump_min_m) + np.float32(jump_ratio) * depth
     flying = (depth - nearest > step) & (farthest - depth > step)
     return valid & ~flying

@@ -327,7 +327,7 @@ def _tree_masks(
             mask &= np.linalg.norm(points - centre, axis=1) > config.balls.radius_m * 1.5 + 0.02
         masks.append(mask)
     candidates = np.concatenate([points[mask] for points, mask in zip(roi_points, masks, strict=True)])
-    connected = tree_component(candidates, trunk_xy, link_m=config.roi.link_m)
+    connected = tree_component(candidates, trunk_xy, roi_radius_m=config.roi.radius_m, link_m=config.roi.link_m)
     splits = np.cumsum([np.count_nonzero(mask) for mask in masks])[:-1]
     for mask, keep in zip(masks, np.split(connected, splits), strict=True):
         mask[mask] = keep

@@ -53,17 +53,13 @@ class Mesh:
         """The mesh with only the triangles where ``keep`` is True (vertices are left as they are)."""
         return Mesh(self.vertices, self.triangles[keep], self.colors[keep], self.kinds[keep])
 
-    def without_triangles_near(self, points: np.ndarray, distance_m: float) -> Mesh:
-        """The mesh without the triangles that have a vertex closer than ``distance_m`` to any of ``points``."""
-        if self.triangle_count == 0 or len(points) == 0:
+    def without_triangles_near(self, points: cKDTree, distance_m: float) -> Mesh:
+        """The mesh without the triangles having a vertex closer than ``distance_m`` to one of ``points``."""
+        if self.triangle_count == 0:
             return self
-        nearest_m, _ = cKDTree(points).query(self.vertices, distance_upper_bound=distance_m)
+        nearest_m, _ = points.query(self.vertices, distance_upper_bound=distance_m)
         vertex_near = np.isfinite(nearest_m)
         return self.keep_triangles(~vertex_near[self.triangles].any(axis=1))
-
-    def used_vertices(self) -> np.ndarray:
-        """The vertices that some triangle uses, (n, 3)."""
-        return self.vertices[np.unique(self.triangles)]
 
 
 def merge_meshes(meshes: Sequence[Mesh]) -> Mesh:
@@ -71,7 +67,9 @@ def merge_meshes(meshes: Sequence[Mesh]) -> Mesh:
     offsets = np.cumsum([0] + [len(mesh.vertices) for mesh in meshes[:-1]])
     return Mesh(
         vertices=np.concatenate([mesh.vertices for mesh in meshes]),
-        triangles=np.concatenate([mesh.triangles + offset for mesh, offset in zip(meshes, offsets, strict=True)]),
+        triangles=np.concatenate(
+            [mesh.triangles + offset for mesh, offset in zip(meshes, offsets, strict=True)]
+        ),
         colors=np.concatenate([mesh.colors for mesh in meshes]),
         kinds=np.concatenate([mesh.kinds for mesh in meshes]),
     )
@@ -120,7 +118,9 @@ def tube(
     first /= np.linalg.norm(first, axis=1, keepdims=True)
     second = np.cross(tangents, first)
     angles = np.linspace(0.0, 2.0 * np.pi, sides, endpoint=False)
-    ring = np.cos(angles)[None, :, None] * first[:, None, :] + np.sin(angles)[None, :, None] * second[:, None, :]
+    ring = (
+        np.cos(angles)[None, :, None] * first[:, None, :] + np.sin(angles)[None, :, None] * second[:, None, :]
+    )
     vertices = centerline[:, None, :] + np.asarray(radii_m, dtype=float)[:, None, None] * ring
     index = np.arange(centerline.shape[0] * sides).reshape(-1, sides)
     here, ahead = index[:-1], index[1:]

@@ -50,3 +50,12 @@ def test_statistical_outlier_removal_drops_isolated_points() -> None:
     kept = statistical_inliers(np.vstack([dense, strays]), neighbors=16, std_ratio=2.5)
     assert not np.isin(np.arange(3000, 3010), kept).any()
     assert np.isin(np.arange(3000), kept).mean() > 0.95
+
+
+def test_flying_pixels_beside_missing_background_are_removed() -> None:
+    """A leaf before a background beyond the sensor's range: the mixed pixels have no farther reading."""
+    depth = _edge_scene()
+    depth[:, 42:] = 0.0
+    keep = reliable_depth_mask(depth)
+    assert not keep[:, 40].any() and not keep[:, 41].any()
+    assert keep[:, :40].all()

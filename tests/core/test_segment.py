@@ -13,28 +13,45 @@ def _blob(rng: np.random.Generator, centre: list[float], radius: float, n: int) 
     return np.asarray(centre) + direction * radius * rng.uniform(0.8, 1.0, size=(n, 1))
 
 
+def _trunk(rng: np.random.Generator, top_m: float = 0.9) -> np.ndarray:
+    return np.column_stack([rng.normal(0, 0.02, 500), rng.normal(0, 0.02, 500), rng.uniform(0.12, top_m, 500)])
+
+
 def _tree(rng: np.random.Generator) -> np.ndarray:
-    trunk = np.column_stack([rng.normal(0, 0.02, 500), rng.normal(0, 0.02, 500), rng.uniform(0.12, 0.9, 500)])
-    return np.vstack([trunk, _blob(rng, [0.0, 0.0, 1.7], 0.8, 8000)])
+    return np.vstack([_trunk(rng), _blob(rng, [0.0, 0.0, 1.7], 0.8, 8000)])
 
 
-def test_neighbour_crown_beyond_a_gap_is_separated() -> None:
+def _inside(points: np.ndarray, radius: float) -> np.ndarray:
+    return points[np.linalg.norm(points[:, :2], axis=1) < radius]
+
+
+def test_neighbour_crown_reaching_through_the_wall_is_dropped() -> None:
     rng = np.random.default_rng(0)
     tree = _tree(rng)
-    neighbour = _blob(rng, [2.1, 0.0, 1.6], 0.9, 4000)  # 0.4 m gap to the tree's crown
-    keep = tree_component(np.vstack([tree, neighbour]), np.zeros(2))
+    neighbour = _inside(_blob(rng, [2.1, 0.0, 1.6], 0.9, 8000), 1.5)  # 0.4 m gap to the tree's crown
+    keep = tree_component(np.vstack([tree, neighbour]), np.zeros(2), roi_radius_m=1.5)
     assert keep[: len(tree)].all() and not keep[len(tree) :].any()
 
 
-def test_crown_with_small_gaps_stays_whole() -> None:
+def test_crown_floating_above_its_trunk_is_kept() -> None:
+    """Scaffold branches hidden by leaves: a 25 cm gap between the trunk's top and the crown."""
     rng = np.random.default_rng(1)
-    tree = _tree(rng)
-    branch_tip = _blob(rng, [0.0, 0.95, 1.7], 0.08, 200)  # 7 cm from the crown's surface
-    keep = tree_component(np.vstack([tree, branch_tip]), np.zeros(2))
+    tree = np.vstack([_trunk(rng, top_m=0.65), _blob(rng, [0.0, 0.0, 1.7], 0.8, 8000)])
+    keep = tree_component(tree, np.zeros(2), roi_radius_m=1.5)
     assert keep.all()
 
 
-def test_without_a_trunk_in_view_everything_is_kept() -> None:
+def test_crown_piece_inside_the_cylinder_is_kept_even_when_apart() -> None:
     rng = np.random.default_rng(2)
-    crown = _blob(rng, [0.0, 0.0, 1.7], 0.8, 3000)
-    assert tree_component(crown, np.array([5.0, 5.0])).all()
+    tree = _tree(rng)
+    branch_tip = _blob(rng, [0.0, 1.05, 1.7], 0.08, 300)  # 17 cm from the crown, 0.3 m from the wall
+    keep = tree_component(np.vstack([tree, branch_tip]), np.zeros(2), roi_radius_m=1.5)
+    assert keep.all()
+
+
+def test_isolated_specks_are_dropped() -> None:
+    rng = np.random.default_rng(3)
+    tree = _tree(rng)
+    speck = np.array([[0.9, -0.9, 0.15], [0.91, -0.9, 0.15]])
+    keep = tree_component(np.vstack([tree, speck]), np.zeros(2), roi_radius_m=1.5)
+    assert keep[: len(tree)].all() and not keep[len(tree) :].any()

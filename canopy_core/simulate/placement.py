@@ -1,0 +1,203 @@
+"""Where the balls and the cameras go: every camera frames the whole tree and every camera sees every ball.
+
+The balls are laid on the ground 0.35-0.8 m from the trunk; each camera stands 2.6-4.0 m from the trunk,
+0.8-1.6 m above the ground, looks at the trunk (a few degrees of yaw and roll jitter) and is pitched so
+that the whole main tree lies inside the depth image and the balls inside both images. A layout is kept
+only if ray casting finds at least :data:`MIN_BALL_PIXELS` pixels of every ball in every depth image;
+otherwise the balls and cameras are drawn again.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import ConvexHull
+
+from canopy_core.capture import Intrinsics
+from canopy_core.simulate.camera import CameraPose, KinectRig, camera_pose, project
+from canopy_core.simulate.raycast import SceneRaycaster, Sphere
+from canopy_core.simulate.scene import Orchard, resting_balls
+
+__all__ = ["MIN_BALL_PIXELS", "Layout", "place_balls_and_cameras", "view_azimuths"]
+
+MIN_BALL_PIXELS = 30
+"""Fewest depth pixels of each ball each view must have (before sensor dropout)."""
+_BALL_DISTANCE_M = (0.35, 0.8)
+_MIN_BALL_SEPARATION_RAD = np.radians(60.0)
+_CAMERA_DISTANCE_M = (2.6, 4.0)
+_CAMERA_HEIGHT_M = (0.8, 1.6)
+_AZIMUTH_JITTER_RAD = np.radians(6.0)
+_YAW_JITTER_RAD = np.radians(4.0)
+_ROLL_JITTER_RAD = np.radians(2.0)
+_PITCH_JITTER_RAD = np.radians(1.0)
+_SIDE_SPREAD_RAD = np.radians(35.0)
+_MARGIN_PX = 4.0
+_LAYOUT_ATTEMPTS = 60
+_POSE_ATTEMPTS = 40
+
+
+@dataclass(frozen=True, eq=False)
+class Layout:
+    """The balls (red, yellow, blue) and the depth cameras' poses, with each ball's pixel count per view."""
+
+    balls: tuple[Sphere, ...]
+    poses: tuple[CameraPose, ...]
+    ball_pixels: tuple[tuple[int, ...], ...]
+
+
+def view_azimuths(rng: np.random.Generator, n_views: int) -> np.ndarray:
+    """Azimuths (radians, of the camera as seen from the trunk) of ``n_views`` views.
+
+    Views alternate between the two sides of the row (-y first), so that two views face each other across
+    it; several views on one side spread over +-35 degrees, never looking along the row into a neighbour.
+    """
+    sides = np.where(np.arange(n_views) % 2 == 0, -np.pi / 2, np.pi / 2)
+    azimuths = np.empty(n_views)
+    for side in (-np.pi / 2, np.pi / 2):
+        on_side = np.flatnonzero(sides == side)
+        spread = np.linspace(-_SIDE_SPREAD_RAD, _SIDE_SPREAD_RAD, len(on_side)) if len(on_side) > 1 else 0.0
+        azimuths[on_side] = side + spread
+    return azimuths + rng.uniform(-_AZIMUTH_JITTER_RAD, _AZIMUTH_JITTER_RAD, n_views)
+
+
+def _ball_positions(rng: np.random.Generator) -> np.ndarray:
+    """Three (x, y) positions around the trunk, at least 60 degrees apart as seen from it."""
+    while True:
+        azimuths = rng.uniform(0.0, 2 * np.pi, 3)
+        gaps = np.abs((azimuths[:, None] - azimuths[None, :] + np.pi) % (2 * np.pi) - np.pi)
+        if gaps[np.triu_indices(3, 1)].min() >= _MIN_BALL_SEPARATION_RAD:
+            distances = rng.uniform(*_BALL_DISTANCE_M, 3)
+            return np.column_stack([distances * np.cos(azimuths), distances * np.sin(azimuths)])
+
+
+def _elevations(points: np.ndarray, position: np.ndarray, yaw_rad: float) -> np.ndarray | None:
+    """Elevation angles of points seen from ``position`` in the vertical plane of ``yaw_rad``; None when some
+    point is not well in front of the camera."""
+    relative = points - position
+    forward = relative[:, 0] * np.cos(yaw_rad) + relative[:, 1] * np.sin(yaw_rad)
+    if forward.min() < 0.3:
+        return None
+    return np.arctan2(relative[:, 2], forward)
+
+
+def _pitch_range(elevations: np.ndarray, intrinsics: Intrinsics) -> tuple[float, float]:
+    """Pitches that put every elevation inside the image's rows (with margin), as (lowest, highest).
+
+    A point at elevation a appears at row cy - fy * tan(a - pitch), independently of its lateral offset.
+    """
+    above = np.arctan((intrinsics.cy - _MARGIN_PX) / intrinsics.fy)
+    below = np.arctan((intrinsics.height - 1 - _MARGIN_PX - intrinsics.cy) / intrinsics.fy)
+    return float(elevations.max() - above), float(elevations.min() + below)
+
+
+def _inside(pose: CameraPose, intrinsics: Intrinsics, points: np.ndarray) -> bool:
+    pixels, depth = project(pose, intrinsics, points)
+    return bool(
+        (depth > 0).all()
+        and (pixels[:, 0] >= _MARGIN_PX).all()
+        and (pixels[:, 0] <= intrinsics.width - 1 - _MARGIN_PX).all()
+        and (pixels[:, 1] >= _MARGIN_PX).all()
+        and (pixels[:, 1] <= intrinsics.height - 1 - _MARGIN_PX).all()
+    )
+
+
+def _framed_pose(
+    rng: np.random.Generator,
+    orchard: Orchard,
+    rig: KinectRig,
+    azimuth: float,
+    tree_points: np.ndarray,
+    ball_points: np.ndarray,
+    *,
+    native_color: bool,
+) -> CameraPose | None:
+    """A camera pose on ``azimuth`` that frames the tree and the balls, or None if none was found."""
+    for _ in range(_POSE_ATTEMPTS):
+        distance = rng.uniform(*_CAMERA_DISTANCE_M)
+        x, y = distance * np.cos(azimuth), distance * np.sin(azimuth)
+        position = np.array([x, y, float(orchard.ground.height_at(x, y)) + rng.uniform(*_CAMERA_HEIGHT_M)])
+        yaw = azimuth + np.pi + rng.uniform(-_YAW_JITTER_RAD, _YAW_JITTER_RAD)
+        tree_elevations = _elevations(tree_points, position, yaw)
+        ball_elevations = _elevations(ball_points, position, yaw)
+        if tree_elevations is None or ball_elevations is None:
+            continue
+        ranges = [_pitch_range(tree_elevations, rig.depth), _pitch_range(ball_elevations, rig.depth)]
+        if native_color:
+            ranges.append(_pitch_range(ball_elevations, rig.color))
+        lowest, highest = max(r[0] for r in ranges), min(r[1] for r in ranges)
+        if lowest > highest:
+            continue
+        centred = (tree_elevations.min() + tree_elevations.max()) / 2 + rng.uniform(
+            -_PITCH_JITTER_RAD, _PITCH_JITTER_RAD
+        )
+        pose = camera_pose(
+            position,
+            yaw_rad=yaw,
+            pitch_rad=float(np.clip(centred, lowest, highest)),
+            roll_rad=rng.uniform(-_ROLL_JITTER_RAD, _ROLL_JITTER_RAD),
+        )
+        framed = _inside(pose, rig.depth, tree_points) and _inside(pose, rig.depth, ball_points)
+        if framed and (
+            not native_color or _inside(pose.moved_by(rig.depth_to_color), rig.color, ball_points)
+        ):
+            return pose
+    return None
+
+
+def _ball_pixel_counts(
+    raycaster: SceneRaycaster, pose: CameraPose, intrinsics: Intrinsics
+) -> tuple[int, ...]:
+    surface = raycaster.cast_camera(pose, intrinsics).surface
+    return tuple(int((surface == raycaster.sphere_surface(i)).sum()) for i in range(len(raycaster.spheres)))
+
+
+def place_balls_and_cameras(
+    rng: np.random.Generator,
+    orchard: Orchard,
+    raycaster: SceneRaycaster,
+    rig: KinectRig,
+    *,
+    n_views: int,
+    native_color: bool,
+) -> Layout:
+    """Draw balls and camera poses until every view frames the tree and sees every ball.
+
+    Parameters
+    ----------
+    rng
+        Source of every random draw.
+    orchard
+        The scene; ``raycaster`` must hold its mesh.
+    rig
+        The sensor's intrinsics (the colour image must hold the balls too when ``native_color``).
+    n_views
+        Number of views.
+
+    Raises
+    ------
+    RuntimeError
+        When no layout was found (does not happen for the trees :mod:`tree` grows).
+    """
+    vertices = orchard.main_tree.mesh.vertices
+    tree_points = vertices[ConvexHull(vertices).vertices]
+    for _ in range(_LAYOUT_ATTEMPTS):
+        balls = resting_balls(orchard.ground, _ball_positions(rng))
+        ball_points = np.concatenate([ball.box_corners() for ball in balls])
+        poses: list[CameraPose] = []
+        for azimuth in view_azimuths(rng, n_views):
+            pose = _framed_pose(
+                rng, orchard, rig, azimuth, tree_points, ball_points, native_color=native_color
+            )
+            if pose is None:
+                break
+            poses.append(pose)
+        if len(poses) < n_views:
+            continue
+        with_balls = raycaster.with_spheres(balls)
+        counts = tuple(_ball_pixel_counts(with_balls, pose, rig.depth) for pose in poses)
+        if min(min(per_view) for per_view in counts) >= MIN_BALL_PIXELS:
+            return Layout(balls=balls, poses=tuple(poses), ball_pixels=counts)
+    raise RuntimeError(
+        f"no layout in {_LAYOUT_ATTEMPTS} attempts frames the tree and shows every ball to every view"
+    )

@@ -1,0 +1,163 @@
+"""Synthetic captures of simulated apple trees, with their exact dimensions: the product's test bench.
+
+One seed decides everything (tree, orchard, sensor calibration, sun, balls, cameras, noise), through
+independent random streams, so the same seed writes the same bytes.
+"""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime, timedelta
+from pathlib import Path
+
+import numpy as np
+
+from canopy_core.capture import CameraModel
+from canopy_core.simulate.camera import random_kinect_rig
+from canopy_core.simulate.placement import place_balls_and_cameras
+from canopy_core.simulate.raycast import SceneRaycaster
+from canopy_core.simulate.scene import build_orchard
+from canopy_core.simulate.sensor import capture_frame, random_sunlight
+from canopy_core.simulate.tree import tree_dimensions
+from canopy_core.simulate.writer import CaptureLabels, GroundTruth, SimulatedView, check_empty, write_capture
+
+__all__ = ["simulate_capture", "simulate_captures"]
+
+ORCHARD_NAME = "Simulated block"
+ROW_NAME = "R01"
+_DEPTH_SCALE = 1000.0
+_FIRST_DAY = datetime(2026, 9, 1, 7, 0, tzinfo=UTC)
+
+
+def _captured_at(rng: np.random.Generator) -> str:
+    moment = _FIRST_DAY + timedelta(days=int(rng.integers(0, 45)), minutes=int(rng.integers(0, 11 * 60)))
+    return moment.strftime("%Y-%m-%dT%H:%M:%SZ")
+
+
+def _simulate(
+    out_dir: Path, *, seed: int, tree: str, n_views: int, native_color: bool, sun: float | None
+) -> Path:
+    if n_views < 1:
+        raise ValueError(f"n_views must be at least 1, got {n_views}")
+    if sun is not None and not 0.0 <= sun <= 1.0:
+        raise ValueError(f"sun must be in [0, 1], got {sun}")
+    check_empty(out_dir)
+    orchard_rng, rig_rng, sun_rng, layout_rng, sensor_rng, label_rng = (
+        np.random.default_rng(stream) for stream in np.random.SeedSequence(seed).spawn(6)
+    )
+    orchard = build_orchard(orchard_rng)
+    rig = random_kinect_rig(rig_rng)
+    sunlight = random_sunlight(sun_rng, strength=sun)
+    raycaster = SceneRaycaster.build(orchard.mesh)
+    layout = place_balls_and_cameras(
+        layout_rng, orchard, raycaster, rig, n_views=n_views, native_color=native_color
+    )
+    scene = raycaster.with_spheres(layout.balls)
+    camera = (
+        CameraModel(
+            depth=rig.depth, depth_scale=_DEPTH_SCALE, color=rig.color, depth_to_color=rig.depth_to_color
+        )
+        if native_color
+        else CameraModel(depth=rig.depth, depth_scale=_DEPTH_SCALE)
+    )
+    views = [
+        SimulatedView(
+            name=f"views/{number}",
+            frame=capture_frame(scene, pose, rig, sunlight, sensor_rng, native_color=native_color),
+            camera=camera,
+            camera_to_world=pose.camera_to_world,
+            ball_pixels=ball_pixels,
+        )
+        for number, (pose, ball_pixels) in enumerate(
+            zip(layout.poses, layout.ball_pixels, strict=True), start=1
+        )
+    ]
+    return write_capture(
+        out_dir,
+        labels=CaptureLabels(
+            orchard=ORCHARD_NAME, row=ROW_NAME, tree=tree, captured_at=_captured_at(label_rng)
+        ),
+        views=views,
+        ground_truth=GroundTruth(
+            seed=seed,
+            dimensions=tree_dimensions(orchard.main_tree),
+            orchard=orchard,
+            balls=layout.balls,
+            sunlight=sunlight,
+        ),
+    )
+
+
+def simulate_capture(
+    out_dir: Path, *, seed: int, n_views: int = 2, native_color: bool = True, sun: float | None = None
+) -> Path:
+    """Write one synthetic Kinect v2 capture of a simulated apple tree, with its ``ground_truth.json``.
+
+    Parameters
+    ----------
+    out_dir
+        The capture folder to create; it must not exist or be empty.
+    seed
+        Decides everything; the same seed and options write byte-identical files.
+    n_views
+        Number of views: two face each other across the row; more alternate sides and spread over each.
+    native_color
+        True: 1920x1080 JPEG colour from the colour camera 5.2 cm to the depth camera's right, with
+        ``color_intrinsics`` and ``depth_to_color`` in camera.json. False: 512x424 PNG colour registered
+        pixel for pixel to the depth image.
+    sun
+        Direct sunlight strength in [0, 1] (brighter colour, more depth noise and dropout); random if None.
+
+    Returns
+    -------
+    Path
+        ``out_dir``.
+
+    Raises
+    ------
+    ValueError
+        If ``n_views`` < 1 or ``sun`` is outside [0, 1].
+    FileExistsError
+        If ``out_dir`` already holds files.
+    """
+    return _simulate(
+        Path(out_dir), seed=seed, tree="T000", n_views=n_views, native_color=native_color, sun=sun
+    )
+
+
+def simulate_captures(out: Path, *, seed: int, count: int, n_views: int = 2) -> list[Path]:
+    """Write ``count`` synthetic captures ``out/tree_000``, ``out/tree_001``, ... of different trees.
+
+    Each capture gets its own seed derived from ``seed`` (so tree shape and size, orchard, camera distances
+    and heights, noise and sun all vary) and is labelled tree ``T000``, ``T001``, ... of one row; colour is
+    native. The same ``seed`` writes byte-identical files.
+
+    Parameters
+    ----------
+    out
+        The folder to write the captures into.
+    seed
+        The seed the captures' seeds are derived from.
+    count
+        Number of captures.
+    n_views
+        Views per capture.
+
+    Returns
+    -------
+    list of Path
+        The capture folders, in order.
+    """
+    if count < 0:
+        raise ValueError(f"count must not be negative, got {count}")
+    seeds = [int(child.generate_state(1)[0]) for child in np.random.SeedSequence(seed).spawn(count)]
+    return [
+        _simulate(
+            Path(out) / f"tree_{index:03d}",
+            seed=tree_seed,
+            tree=f"T{index:03d}",
+            n_views=n_views,
+            native_color=True,
+            sun=None,
+        )
+        for index, tree_seed in enumerate(seeds)
+    ]

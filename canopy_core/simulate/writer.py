@@ -1,0 +1,155 @@
+"""Writing a simulated capture folder in the format canopy-capture/1, with its ``ground_truth.json``.
+
+Depth is written as a 16-bit PNG (millimetres), colour as JPEG (quality 92) for native 1920x1080 pairs and
+as PNG when it is registered to the depth image. Nothing depends on the clock or the machine, so equal
+captures are equal byte for byte.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from PIL import Image
+
+from canopy_core.capture import CAPTURE_FORMAT, CameraModel
+from canopy_core.simulate.raycast import Sphere
+from canopy_core.simulate.scene import BALL_COLORS, BALL_DIAMETER_M, Orchard
+from canopy_core.simulate.sensor import SensorFrame, Sunlight
+from canopy_core.simulate.tree import TreeDimensions
+
+__all__ = ["SENSOR_NAME", "CaptureLabels", "GroundTruth", "SimulatedView", "check_empty", "write_capture"]
+
+SENSOR_NAME = "simulated-kinect-v2"
+_JPEG_QUALITY = 92
+
+
+@dataclass(frozen=True)
+class CaptureLabels:
+    """Who and when, as capture.json names them."""
+
+    orchard: str
+    row: str
+    tree: str
+    captured_at: str
+
+
+@dataclass(frozen=True, eq=False)
+class SimulatedView:
+    """One rendered view: its name (``views/1``), images, calibration and depth-camera-to-world pose."""
+
+    name: str
+    frame: SensorFrame
+    camera: CameraModel
+    camera_to_world: np.ndarray
+    ball_pixels: tuple[int, ...]
+
+
+@dataclass(frozen=True, eq=False)
+class GroundTruth:
+    """What the simulation knows exactly, for ``ground_truth.json``."""
+
+    seed: int
+    dimensions: TreeDimensions
+    orchard: Orchard
+    balls: tuple[Sphere, ...]
+    sunlight: Sunlight
+
+
+def _write_json(path: Path, content: dict[str, Any]) -> None:
+    path.write_text(json.dumps(content, indent=2) + "\n", encoding="utf-8")
+
+
+def _camera_json(camera: CameraModel) -> dict[str, Any]:
+    content: dict[str, Any] = {
+        "depth_intrinsics": dataclasses.asdict(camera.depth),
+        "depth_scale": camera.depth_scale,
+    }
+    if camera.color is not None and camera.depth_to_color is not None:
+        content["color_intrinsics"] = dataclasses.asdict(camera.color)
+        content["depth_to_color"] = camera.depth_to_color.tolist()
+    return content
+
+
+def _manifest_json(labels: CaptureLabels, views: Sequence[SimulatedView]) -> dict[str, Any]:
+    return {
+        "format": CAPTURE_FORMAT,
+        **dataclasses.asdict(labels),
+        "sensor": SENSOR_NAME,
+        "calibration_balls": {"diameter_m": BALL_DIAMETER_M, "colors": list(BALL_COLORS)},
+        "views": [view.name for view in views],
+    }
+
+
+def _ground_truth_json(truth: GroundTruth, views: Sequence[SimulatedView]) -> dict[str, Any]:
+    orchard = truth.orchard
+    main = orchard.main_tree
+    return {
+        **dataclasses.asdict(truth.dimensions),
+        "world_frame": "metres; z up, x along the row, y across it; origin on the ground at the trunk's base",
+        "views": {
+            view.name: {
+                "camera_to_world": view.camera_to_world.tolist(),
+                "ball_pixels": dict(zip(BALL_COLORS, view.ball_pixels, strict=True)),
+            }
+            for view in views
+        },
+        "balls": {
+            color: {"center_m": ball.centre.tolist(), "diameter_m": 2 * ball.radius_m}
+            for color, ball in zip(BALL_COLORS, truth.balls, strict=True)
+        },
+        "tree": {
+            "form": main.shape.form.value,
+            "trunk_radius_m": main.shape.trunk_radius_m,
+            "leaves": main.leaves.triangle_count,
+            "triangles": main.mesh.triangle_count,
+        },
+        "neighbours": [
+            {"trunk_base_m": tree.base.tolist(), "form": tree.shape.form.value} for tree in orchard.neighbours
+        ],
+        "posts": [list(position) for position in orchard.post_positions],
+        "ground": {
+            "tilt_deg": orchard.ground.tilt_deg,
+            "herbicide_strip_width_m": 2 * orchard.ground.strip_half_width_m,
+        },
+        "sun": {"strength": truth.sunlight.strength, "direction": list(truth.sunlight.direction)},
+        "scene_triangles": orchard.mesh.triangle_count,
+        "seed": truth.seed,
+    }
+
+
+def check_empty(out_dir: Path) -> None:
+    """Refuse a folder that holds files: a simulation never overwrites a capture.
+
+    Raises
+    ------
+    FileExistsError
+        If ``out_dir`` exists and is not empty.
+    """
+    if out_dir.exists() and any(out_dir.iterdir()):
+        raise FileExistsError(f"{out_dir} is not empty; simulated captures are written to new folders")
+
+
+def write_capture(
+    out_dir: Path, *, labels: CaptureLabels, views: Sequence[SimulatedView], ground_truth: GroundTruth
+) -> Path:
+    """Write a capture folder at ``out_dir`` (created if missing; see :func:`check_empty`) and return it."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    for view in views:
+        view_dir = out_dir / view.name
+        view_dir.mkdir(parents=True)
+        Image.fromarray(view.frame.depth_raw).save(view_dir / "depth.png")
+        color = Image.fromarray(view.frame.color_rgb)
+        if view.camera.registered:
+            color.save(view_dir / "color.png")
+        else:
+            color.save(view_dir / "color.jpg", quality=_JPEG_QUALITY)
+        _write_json(view_dir / "camera.json", _camera_json(view.camera))
+    _write_json(out_dir / "capture.json", _manifest_json(labels, views))
+    _write_json(out_dir / "ground_truth.json", _ground_truth_json(ground_truth, views))
+    return out_dir

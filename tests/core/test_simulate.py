@@ -1,0 +1,353 @@
+"""The capture simulator: valid capture folders, exact ground truth, a depth sensor behaving as Kinect v2."""
+
+from __future__ import annotations
+
+import json
+from datetime import datetime
+from pathlib import Path
+
+import numpy as np
+import open3d as o3d
+import pytest
+from scipy.spatial import cKDTree
+
+from canopy_core.backproject import backproject
+from canopy_core.balls import color_mask
+from canopy_core.capture import Capture, Intrinsics, load_capture
+from canopy_core.config import DEFAULT_HSV_RANGES
+from canopy_core.simulate import simulate_capture, simulate_captures
+from canopy_core.simulate.camera import COLOR_BASELINE_M, camera_pose, project, random_kinect_rig
+from canopy_core.simulate.ground import random_ground
+from canopy_core.simulate.mesh import Mesh, SurfaceKind, merge_meshes
+from canopy_core.simulate.placement import place_balls_and_cameras, view_azimuths
+from canopy_core.simulate.raycast import SceneRaycaster, Sphere
+from canopy_core.simulate.scene import BALL_COLORS, build_orchard
+from canopy_core.simulate.sensor import (
+    DEPTH_SUBPIXEL_OFFSETS,
+    Sunlight,
+    axial_noise_sigma_m,
+    color_image,
+    depth_image,
+)
+from canopy_core.simulate.tree import Tree, build_tree, random_tree_shape, tree_dimensions
+
+SMALL_CAMERA = Intrinsics(width=160, height=120, fx=100.0, fy=100.0, cx=80.0, cy=60.0)
+LOOKING_ALONG_Y = camera_pose(np.array([0.0, 0.0, 1.0]), yaw_rad=np.pi / 2, pitch_rad=0.0, roll_rad=0.0)
+OVERCAST = Sunlight(strength=0.0, direction=(0.0, 0.0, 1.0))
+
+
+def _truth(capture: Path) -> dict:
+    return json.loads((capture / "ground_truth.json").read_text())
+
+
+def _quad(
+    x: tuple[float, float], z: tuple[float, float], *, y: float, rgb: tuple[float, float, float]
+) -> Mesh:
+    """A rectangle facing the camera at ``LOOKING_ALONG_Y``, in the plane at distance ``y``."""
+    vertices = np.array([[x[0], y, z[0]], [x[1], y, z[0]], [x[1], y, z[1]], [x[0], y, z[1]]])
+    return Mesh(
+        vertices=vertices,
+        triangles=np.array([[0, 1, 2], [0, 2, 3]], dtype=np.int32),
+        colors=np.tile(np.asarray(rgb, dtype=np.float32), (2, 1)),
+        kinds=np.full(2, SurfaceKind.POST, dtype=np.int8),
+    )
+
+
+def _depth_m(mesh: Mesh, sunlight: Sunlight = OVERCAST, seed: int = 0) -> np.ndarray:
+    hits = SceneRaycaster.build(mesh).cast_camera(
+        LOOKING_ALONG_Y, SMALL_CAMERA, subpixel_offsets=DEPTH_SUBPIXEL_OFFSETS
+    )
+    return depth_image(hits, sunlight, np.random.default_rng(seed)).astype(float) / 1000.0
+
+
+@pytest.fixture(scope="module")
+def native_capture(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return simulate_capture(tmp_path_factory.mktemp("native") / "tree", seed=3)
+
+
+@pytest.fixture(scope="module")
+def registered_capture(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return simulate_capture(
+        tmp_path_factory.mktemp("registered") / "tree", seed=4, native_color=False, sun=1.0
+    )
+
+
+# --- the capture folder -------------------------------------------------------------------------------
+
+
+def test_native_capture_loads_with_full_hd_colour_and_extrinsics(native_capture: Path) -> None:
+    capture = load_capture(native_capture)
+    manifest = capture.manifest
+    assert (manifest.orchard, manifest.row, manifest.tree) == ("Simulated block", "R01", "T000")
+    assert manifest.sensor == "simulated-kinect-v2" and manifest.views == ["views/1", "views/2"]
+    assert datetime.strptime(manifest.captured_at, "%Y-%m-%dT%H:%M:%SZ")
+    assert manifest.calibration_balls.colors == ["red", "yellow", "blue"]
+    assert manifest.calibration_balls.diameter_m == 0.1
+    for view in capture.views:
+        assert view.depth_raw.shape == (424, 512) and view.color_rgb.shape == (1080, 1920, 3)
+        assert (native_capture / view.name / "color.jpg").is_file()
+        camera = view.camera
+        assert camera.color is not None and camera.depth_to_color is not None
+        assert camera.depth.fx == pytest.approx(365.0, rel=0.021)
+        assert camera.color.fx == pytest.approx(1060.0, rel=0.021)
+        np.testing.assert_allclose(camera.depth_to_color[:3, 3], [-COLOR_BASELINE_M, 0.0, 0.0])
+
+
+def test_registered_capture_loads_with_colour_the_size_of_depth(registered_capture: Path) -> None:
+    capture = load_capture(registered_capture)
+    for view in capture.views:
+        assert view.camera.registered and view.color_rgb.shape == (424, 512, 3)
+        assert (registered_capture / view.name / "color.png").is_file()
+    assert json.loads((registered_capture / "views/1/camera.json").read_text()).keys() == {
+        "depth_intrinsics",
+        "depth_scale",
+    }
+
+
+def test_ground_truth_holds_dimensions_poses_and_balls(native_capture: Path) -> None:
+    truth = _truth(native_capture)
+    assert 1.8 <= truth["height_m"] <= 4.05 and 0.95 <= truth["width_m"] <= 2.65
+    assert 0.4 <= truth["crown_base_m"] <= 1.3
+    assert truth["thickness_m"] == pytest.approx(truth["height_m"] - truth["crown_base_m"])
+    assert set(truth["views"]) == {"views/1", "views/2"} and set(truth["balls"]) == {"red", "yellow", "blue"}
+    for view in truth["views"].values():
+        pose = np.asarray(view["camera_to_world"])
+        np.testing.assert_allclose(pose[:3, :3] @ pose[:3, :3].T, np.eye(3), atol=1e-9)
+
+
+def test_same_seed_writes_identical_files_and_each_tree_differs(tmp_path: Path) -> None:
+    first = simulate_captures(tmp_path / "a", seed=21, count=2, n_views=1)
+    second = simulate_captures(tmp_path / "b", seed=21, count=2, n_views=1)
+    assert [p.name for p in first] == ["tree_000", "tree_001"]
+    for one, other in zip(first, second, strict=True):
+        files = sorted(p.relative_to(one) for p in one.rglob("*") if p.is_file())
+        assert files == sorted(p.relative_to(other) for p in other.rglob("*") if p.is_file())
+        assert all((one / f).read_bytes() == (other / f).read_bytes() for f in files)
+    assert [load_capture(p).manifest.tree for p in first] == ["T000", "T001"]
+    assert _truth(first[0])["seed"] != _truth(first[1])["seed"]
+    assert _truth(first[0])["width_m"] != _truth(first[1])["width_m"]
+
+
+def test_refuses_bad_options_and_a_folder_that_holds_files(tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="n_views"):
+        simulate_capture(tmp_path / "a", seed=1, n_views=0)
+    with pytest.raises(ValueError, match="sun"):
+        simulate_capture(tmp_path / "a", seed=1, sun=1.5)
+    (tmp_path / "full").mkdir()
+    (tmp_path / "full" / "capture.json").write_text("{}")
+    with pytest.raises(FileExistsError):
+        simulate_capture(tmp_path / "full", seed=1)
+
+
+# --- ground truth against the rendered data ---------------------------------------------------------
+
+
+def _ball_points_world(capture: Capture, truth: dict, color: str) -> list[np.ndarray]:
+    """Per view, the back-projected points whose colour is the ball's, mapped to the world frame."""
+    out = []
+    for view in capture.views:
+        cloud = backproject(view)
+        ball = cloud.select(cloud.has_color & color_mask(cloud.colors_rgb, DEFAULT_HSV_RANGES[color]))
+        pose = np.asarray(truth["views"][view.name]["camera_to_world"])
+        out.append(ball.points_m @ pose[:3, :3].T + pose[:3, 3])
+    return out
+
+
+@pytest.mark.parametrize("color", ["red", "yellow", "blue"])
+def test_ball_coloured_depth_pixels_lie_on_the_true_ball_in_native_mode(
+    native_capture: Path, color: str
+) -> None:
+    """Catches axis, sign and extrinsic errors: depth, colour (through depth_to_color) and pose must agree."""
+    truth = _truth(native_capture)
+    centre = np.asarray(truth["balls"][color]["center_m"])
+    for points in _ball_points_world(load_capture(native_capture), truth, color):
+        residual_m = np.linalg.norm(points - centre, axis=1) - 0.05
+        assert len(points) >= 20
+        assert np.median(np.abs(residual_m)) < 0.008
+        assert abs(np.median(residual_m)) < 0.004
+
+
+def test_yellow_ball_pixels_lie_on_the_true_ball_in_registered_mode(registered_capture: Path) -> None:
+    truth = _truth(registered_capture)
+    centre = np.asarray(truth["balls"]["yellow"]["center_m"])
+    for points in _ball_points_world(load_capture(registered_capture), truth, "yellow"):
+        residual_m = np.linalg.norm(points - centre, axis=1) - 0.05
+        assert len(points) >= 20 and np.median(np.abs(residual_m)) < 0.01
+
+
+def test_two_views_face_each_other_across_the_row_upright(native_capture: Path) -> None:
+    poses = [np.asarray(v["camera_to_world"]) for v in _truth(native_capture)["views"].values()]
+    positions = np.array([pose[:3, 3] for pose in poses])
+    assert positions[0, 1] * positions[1, 1] < 0
+    assert np.all(
+        (np.hypot(positions[:, 0], positions[:, 1]) >= 2.6)
+        & (np.hypot(positions[:, 0], positions[:, 1]) <= 4.0)
+    )
+    assert np.all((positions[:, 2] > 0.6) & (positions[:, 2] < 1.8))
+    for pose, position in zip(poses, positions, strict=True):
+        forward = pose[:3, 2]
+        horizontal = forward[:2] / np.linalg.norm(forward[:2])
+        assert -np.sign(position[1]) * horizontal[1] > np.cos(np.radians(12.0))
+        assert abs(pose[2, 0]) < np.sin(np.radians(3.0))
+
+
+def test_every_view_frames_the_whole_tree_and_sees_every_ball() -> None:
+    orchard = build_orchard(np.random.default_rng(8))
+    rig = random_kinect_rig(np.random.default_rng(8))
+    raycaster = SceneRaycaster.build(orchard.mesh)
+    layout = place_balls_and_cameras(
+        np.random.default_rng(8), orchard, raycaster, rig, n_views=3, native_color=True
+    )
+    for pose, ball_pixels in zip(layout.poses, layout.ball_pixels, strict=True):
+        pixels, depth = project(pose, rig.depth, orchard.main_tree.mesh.vertices)
+        assert (depth > 0).all()
+        assert pixels.min() >= 0 and (pixels.max(axis=0) <= [rig.depth.width - 1, rig.depth.height - 1]).all()
+        assert min(ball_pixels) >= 30
+    for ball in layout.balls:
+        assert 0.35 <= np.hypot(*ball.centre[:2]) <= 0.8
+        assert ball.centre[2] == pytest.approx(float(orchard.ground.height_at(*ball.centre[:2])) + 0.05)
+
+
+def test_more_views_alternate_sides_and_never_look_along_the_row() -> None:
+    azimuths = view_azimuths(np.random.default_rng(0), 4)
+    assert list(np.sign(np.sin(azimuths))) == [-1, 1, -1, 1]
+    assert np.all(np.abs(np.cos(azimuths)) < np.cos(np.radians(45.0)))
+
+
+# --- tree and orchard ---------------------------------------------------------------------------------
+
+
+def test_dimensions_follow_the_definitions_on_a_known_mesh() -> None:
+    wood = _quad((-0.05, 0.05), (-0.1, 1.0), y=0.0, rgb=(0.4, 0.3, 0.2))
+    leaves = Mesh(
+        vertices=np.array([[1.0, 0.0, 1.2], [-0.6, 0.8, 1.0], [0.0, -0.2, 2.5]]),
+        triangles=np.array([[0, 1, 2]], dtype=np.int32),
+        colors=np.array([[0.2, 0.5, 0.1]], dtype=np.float32),
+        kinds=np.array([SurfaceKind.LEAF], dtype=np.int8),
+    )
+    tree = Tree(shape=random_tree_shape(np.random.default_rng(0)), base=np.zeros(3), wood=wood, leaves=leaves)
+    dimensions = tree_dimensions(tree)
+    assert dimensions.height_m == 2.5
+    assert dimensions.width_m == pytest.approx(np.hypot(1.6, 0.8))
+    assert dimensions.crown_base_m == 1.0 and dimensions.thickness_m == 1.5
+
+
+def test_width_is_the_largest_horizontal_extent_of_a_grown_tree() -> None:
+    rng = np.random.default_rng(5)
+    tree = build_tree(random_tree_shape(rng), rng, base=np.zeros(3))
+    plan = tree.mesh.vertices[:, :2]
+    directions = np.linspace(0.0, np.pi, 720, endpoint=False)
+    extents = [np.ptp(plan @ np.array([np.cos(a), np.sin(a)])) for a in directions]
+    dimensions = tree_dimensions(tree)
+    assert dimensions.width_m == pytest.approx(max(extents), rel=1e-5)
+    assert dimensions.height_m == tree.mesh.vertices[:, 2].max()
+    assert dimensions.crown_base_m == tree.leaves.vertices[:, 2].min()
+
+
+def test_neighbours_stand_in_the_row_leaving_a_gap_to_the_main_tree() -> None:
+    orchard = build_orchard(np.random.default_rng(2))
+    main = cKDTree(orchard.main_tree.mesh.vertices)
+    for neighbour in orchard.neighbours:
+        assert 3.0 <= abs(neighbour.base[0]) <= 4.0 and abs(neighbour.base[1]) < 0.3
+        used = neighbour.mesh.vertices[np.unique(neighbour.mesh.triangles)]
+        assert main.query(used)[0].min() >= 0.3
+    for x, _, _ in orchard.post_positions:
+        assert abs(x) >= 1.6
+    assert orchard.mesh.triangle_count < 200_000
+
+
+def test_ground_is_zero_at_the_trunk_base_and_its_heights_match_its_mesh() -> None:
+    ground = random_ground(np.random.default_rng(6))
+    assert float(ground.height_at(0.0, 0.0)) == 0.0
+    inner = (np.abs(ground.xs) <= 5.0)[None, :] & (np.abs(ground.ys) <= 5.0)[:, None]
+    assert np.ptp(ground.heights_m[inner]) < 0.4 and ground.tilt_deg <= 0.5
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(
+        o3d.core.Tensor.from_numpy(ground.mesh.vertices.astype(np.float32)),
+        o3d.core.Tensor.from_numpy(ground.mesh.triangles.astype(np.uint32)),
+    )
+    xy = np.random.default_rng(1).uniform(-5.0, 5.0, size=(500, 2))
+    rays = np.column_stack([xy, np.full(500, 10.0), np.zeros((500, 2)), -np.ones(500)]).astype(np.float32)
+    surface_z = 10.0 - scene.cast_rays(o3d.core.Tensor.from_numpy(rays))["t_hit"].numpy()
+    np.testing.assert_allclose(surface_z, ground.height_at(xy[:, 0], xy[:, 1]), atol=2e-5)
+
+
+# --- the sensor ---------------------------------------------------------------------------------------
+
+# A board 2 m away whose edges fall a fifth of a pixel from pixel centres, so that a third of the rays of
+# every edge pixel hit it: columns 65 and 95, rows 45 and 75 (SMALL_CAMERA, LOOKING_ALONG_Y).
+BOARD = _quad((-0.296, 0.296), (0.704, 1.296), y=2.0, rgb=(0.5, 0.4, 0.3))
+WALL = _quad((-6.0, 6.0), (-5.0, 7.0), y=4.0, rgb=(0.6, 0.6, 0.6))
+NEAR_WALL = _quad((-6.0, 6.0), (-5.0, 7.0), y=2.0, rgb=(0.6, 0.6, 0.6))
+
+
+def _board_pixels() -> tuple[np.ndarray, np.ndarray]:
+    """The pixels the board covers at least partly, and those of them on its edge."""
+    board = np.zeros((SMALL_CAMERA.height, SMALL_CAMERA.width), dtype=bool)
+    board[45:76, 65:96] = True
+    edge = board.copy()
+    edge[46:75, 66:95] = False
+    return board, edge
+
+
+def test_silhouette_pixels_mix_foreground_and_background_depths() -> None:
+    depth_m = _depth_m(merge_meshes([BOARD, WALL]))
+    flying = (depth_m > 2.05) & (depth_m < 3.95)
+    _, edge = _board_pixels()
+    assert flying[edge].mean() > 0.5
+    assert not (flying & ~edge).any()
+
+
+def test_silhouette_against_sky_reads_foreground_depth_or_nothing() -> None:
+    depth_m = _depth_m(BOARD)
+    read = depth_m > 0
+    assert np.abs(depth_m[read] - 2.0).max() < 0.02
+    board, edge = _board_pixels()
+    assert 0.1 < read[edge].mean() < 0.6
+    assert not read[~board].any()
+
+
+def _sigma_mm(depth_m: float, incidence_deg: float = 0.0) -> float:
+    return 1000 * float(axial_noise_sigma_m(np.array(depth_m), np.radians(np.array(incidence_deg))))
+
+
+def test_axial_noise_grows_with_distance_and_incidence_as_kinect_v2() -> None:
+    assert _sigma_mm(1.0) == pytest.approx(1.3, abs=0.3)
+    assert 4.0 <= _sigma_mm(4.0) <= 6.0
+    assert _sigma_mm(3.0, incidence_deg=70.0) > 2 * _sigma_mm(3.0)
+
+
+def test_flat_wall_reads_unbiased_depth_with_the_modelled_noise() -> None:
+    depth_m = _depth_m(NEAR_WALL)
+    read = depth_m[depth_m > 0]
+    assert 0.005 < 1 - read.size / depth_m.size < 0.03
+    assert abs(read.mean() - 2.0) < 0.0003
+    assert read.std() * 1000 == pytest.approx(_sigma_mm(2.0), rel=0.25)
+
+
+def test_sun_raises_depth_noise_and_dropout() -> None:
+    overcast = _depth_m(NEAR_WALL)
+    sunny = _depth_m(NEAR_WALL, Sunlight(strength=1.0, direction=(0.0, -1.0, 0.0)))
+    assert (sunny == 0).mean() > (overcast == 0).mean() + 0.05
+    assert sunny[sunny > 0].std() > 2 * overcast[overcast > 0].std()
+
+
+@pytest.mark.parametrize("strength", [0.0, 1.0])
+@pytest.mark.parametrize("color", ["red", "yellow", "blue"])
+def test_balls_keep_their_colour_range_lit_and_shaded(color: str, strength: float) -> None:
+    camera = Intrinsics(width=160, height=120, fx=400.0, fy=400.0, cx=80.0, cy=60.0)
+    ball = Sphere(
+        centre=np.array([0.0, 2.0, 1.0]),
+        radius_m=0.05,
+        color=np.array(BALL_COLORS[color], dtype=np.float32) / 255,
+    )
+    raycaster = SceneRaycaster.build(WALL, [ball])
+    hits = raycaster.cast_camera(LOOKING_ALONG_Y, camera)
+    sun = Sunlight(strength=strength, direction=(0.6, -0.48, 0.64))
+    rgb = color_image(hits, raycaster, sun, np.random.default_rng(0))
+    on_ball = hits.surface[..., 0] == raycaster.sphere_surface(0)
+    assert color_mask(rgb[on_ball], DEFAULT_HSV_RANGES[color]).mean() > 0.95
+    brightness = rgb.max(axis=-1).astype(float)
+    upper_right = on_ball & (np.arange(160)[None, :] > 80) & (np.arange(120)[:, None] < 60)
+    lower_left = on_ball & (np.arange(160)[None, :] < 80) & (np.arange(120)[:, None] > 60)
+    assert brightness[upper_right].mean() > brightness[lower_left].mean()
