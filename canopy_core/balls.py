@@ -30,9 +30,12 @@ _LEAST_SQUARES_MAX_POINTS = 2000
 """Each least-squares round uses at most this many inliers, evenly strided: enough for a sub-mm fit."""
 _MAX_ROUNDS = 10
 """Least-squares rounds at most, each re-selecting the inliers of the last sphere."""
-_RADIUS_PRIOR = 0.02
+_RADIUS_PRIOR = 0.01
 """Relative spread of true radii about the nominal one: a soft prior of the refinement that steadies the
 radius (and so the centre's depth) of a small or partly seen ball, and gives way where the data insist."""
+_RADIUS_SPREAD = 0.05
+"""Relative spread of the radius a ball is seen with about its nominal one, for ranking candidates: the
+diameter given may be a little off (a ball sold as 406 mm that Kinect v2 sees as 422 mm)."""
 _MAX_BLOB_WIDTH_RADII = 6.0
 """A blob wider than this many ball radii is neither a ball nor a ball with a small thing touching it."""
 _MAX_BLOBS = 12
@@ -518,15 +521,15 @@ def _detect(scene: _Scene, color: str, config: BallConfig) -> SphereFit:
 def _ranked_seeds(
     candidates_m: np.ndarray, blobs: list[np.ndarray], scene: _Scene, config: BallConfig
 ) -> list[tuple[np.ndarray, np.ndarray]]:
-    """RANSAC centres of the blobs, with their blobs, in the order they should be tried.
+    """RANSAC centres of the blobs, with their blobs, the likeliest ball first.
 
-    First the seeds with enough inliers for a ball at their distance, the one whose radius is nearest the
-    ball's first; then the others (small things of the ball's colour), tried only so that their rejection
-    can be reported. The radius that ranks is that of a linear (algebraic) sphere fit to a seed's inliers:
-    cheap, and close to the geometric fit's on inliers.
+    A seed is as likely as the fraction of a ball's pixels its inliers fill (small things of the ball's
+    colour fill few) times a Gaussian of its radius' relative error (``_RADIUS_SPREAD``; apples differ from
+    the ball mainly in size, and the nearer ones fill as many pixels). The radius is that of a linear
+    (algebraic) sphere fit to the seed's inliers: cheap, and close to the geometric fit's on inliers.
     """
     rng = np.random.default_rng(0)
-    ranked: list[tuple[bool, float, np.ndarray, np.ndarray]] = []
+    ranked: list[tuple[float, np.ndarray, np.ndarray]] = []
     for blob in blobs:
         points = candidates_m[blob]
         try:
@@ -536,10 +539,11 @@ def _ranked_seeds(
             inliers = points[_inliers(points, np.append(centre, config.radius_m), config.inlier_tolerance_m)]
         except ValueError:
             continue  # no sphere of about the ball's radius in this blob
-        too_few = inliers.shape[0] < _MIN_COMPLETENESS * scene.pixels_of_ball(centre, config.radius_m)
-        ranked.append((too_few, abs(_algebraic_radius(inliers) - config.radius_m), centre, blob))
-    ranked.sort(key=lambda item: item[:2])
-    return [(centre, blob) for _, _, centre, blob in ranked]
+        completeness = inliers.shape[0] / scene.pixels_of_ball(centre, config.radius_m)
+        radius_error = (_algebraic_radius(inliers) - config.radius_m) / config.radius_m
+        ranked.append((completeness * np.exp(-0.5 * (radius_error / _RADIUS_SPREAD) ** 2), centre, blob))
+    ranked.sort(key=lambda item: -item[0])
+    return [(centre, blob) for _, centre, blob in ranked]
 
 
 def _algebraic_radius(points_m: np.ndarray) -> float:

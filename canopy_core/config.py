@@ -104,8 +104,10 @@ class FilterConfig(_Section):
         "than this fraction of its own depth (plus flying_jump_min_m).",
     )
     flying_jump_min_m: float = Field(0.02, ge=0.0)
-    outlier_neighbors: int = Field(16, ge=2, description="Neighbours of the statistical outlier removal.")
-    outlier_std_ratio: float = Field(2.5, gt=0.0)
+    sparse_radius_px: float = Field(
+        4.0, gt=0.0, description="Neighbourhood of the sparse-point check, in pixels at the point's range."
+    )
+    sparse_min_neighbors: int = Field(3, ge=1, description="Fewest neighbours a kept point has in it.")
 
 
 class GroundConfig(_Section):

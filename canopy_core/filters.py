@@ -3,16 +3,16 @@
 Time-of-flight cameras such as Kinect v2 mix the foreground and background depth at every silhouette edge
 ("flying pixels"); a leafy crown is mostly edges, and those pixels strung out behind it are what makes the
 paper's width W too large. They are removed in image space, where neighbourhoods are free, before
-back-projection; what remains sparse in 3D is removed by statistical outlier removal.
+back-projection; what remains alone in 3D is removed by a range-aware density check.
 """
 
 from __future__ import annotations
 
 import cv2
 import numpy as np
-import open3d as o3d
+from scipy.spatial import cKDTree
 
-__all__ = ["reliable_depth_mask", "statistical_inliers"]
+__all__ = ["reliable_depth_mask", "sparse_point_mask"]
 
 
 def reliable_depth_mask(
@@ -27,12 +27,12 @@ def reliable_depth_mask(
     """Pixels with a trustworthy depth reading: in range and not flying.
 
     A pixel is flying when its ``(2 * window_px + 1)``-square window holds a reading nearer than it by more
-    than ``jump_min_m + jump_ratio * depth`` *and* one farther than it by as much, or none at all: it lies
-    between a foreground and a background surface, where no real surface is. A missing reading counts as
-    far, because the mix of a leaf and a background beyond the sensor's range lands in between with no
-    background reading beside it. A true silhouette pixel of the foreground has nothing nearer around it
-    and is kept, so the crown's outline is not eroded; a background pixel next to a silhouette has nothing
-    farther and is kept too.
+    than ``jump_min_m + jump_ratio * depth`` *and* one farther than it by as much: it lies between a
+    foreground and a background surface, where no real surface is. A true silhouette pixel of the foreground
+    has nothing nearer around it and is kept, so the crown's outline is not eroded; a background pixel next
+    to a silhouette has nothing farther and is kept too. A missing reading does not count as far: the top of
+    a crown against the sky is full of dropouts, and treating them as far would strip it; the few mixed
+    pixels of a leaf before an unread background are left to :func:`sparse_point_mask`.
 
     Parameters
     ----------
@@ -54,21 +54,35 @@ def reliable_depth_mask(
     valid = (depth > min_depth_m) & (depth < max_depth_m)
     kernel = np.ones((2 * window_px + 1, 2 * window_px + 1), dtype=np.uint8)
     nearest = cv2.erode(np.where(valid, depth, np.float32(np.inf)), kernel, borderType=cv2.BORDER_REPLICATE)
-    farthest = cv2.dilate(np.where(valid, depth, np.float32(np.inf)), kernel, borderType=cv2.BORDER_REPLICATE)
+    farthest = cv2.dilate(np.where(valid, depth, np.float32(0.0)), kernel, borderType=cv2.BORDER_REPLICATE)
     step = np.float32(jump_min_m) + np.float32(jump_ratio) * depth
     flying = (depth - nearest > step) & (farthest - depth > step)
     return valid & ~flying
 
 
-def statistical_inliers(points_m: np.ndarray, *, neighbors: int = 16, std_ratio: float = 2.5) -> np.ndarray:
-    """Indices of the points kept by statistical outlier removal.
+def sparse_point_mask(
+    points_m: np.ndarray, *, range_m: np.ndarray, focal_px: float, radius_px: float = 4.0, min_neighbors: int = 3
+) -> np.ndarray:
+    """Mask of points that have at least ``min_neighbors`` others within a few pixels' footprint.
 
-    A point is an outlier when its mean distance to its ``neighbors`` nearest points exceeds the cloud's
-    mean of that distance by more than ``std_ratio`` standard deviations (sparse noise: insects, dust,
-    flying pixels that escaped the image-space filter).
+    The radius grows with each point's range (``radius_px * range / focal``), so a small leaf seen far away
+    (a handful of neighbouring pixels: the crown's tip or top) survives, while the stray points a flying
+    pixel or an insect leaves, each alone in its neighbourhood, do not. A statistical filter over a fixed
+    number of neighbours would remove the small leaf too: its mean neighbour distance is large.
+
+    Parameters
+    ----------
+    points_m
+        ``(N, 3)`` points of one view (any frame).
+    range_m
+        ``(N,)`` each point's depth from the camera that saw it.
+    focal_px
+        That camera's focal length in pixels.
+    radius_px, min_neighbors
+        The neighbourhood, in pixels at the point's range, and how many others it must hold.
     """
-    if points_m.shape[0] <= neighbors:
-        return np.arange(points_m.shape[0])
-    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points_m))
-    _, kept = cloud.remove_statistical_outlier(nb_neighbors=neighbors, std_ratio=std_ratio)
-    return np.asarray(kept, dtype=np.int64)
+    if points_m.shape[0] == 0:
+        return np.zeros(0, dtype=bool)
+    radius = np.maximum(radius_px * range_m / focal_px, 1e-3)
+    counts = cKDTree(points_m).query_ball_point(points_m, r=radius, return_length=True) - 1
+    return counts >= min_neighbors

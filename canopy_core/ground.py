@@ -13,10 +13,18 @@ from dataclasses import dataclass
 
 import numpy as np
 import open3d as o3d
+from scipy.spatial import cKDTree
 
 from canopy_core.config import GroundConfig
 
-__all__ = ["GroundFrame", "ball_plane", "fit_ground_frame", "horizontal_distance"]
+__all__ = [
+    "GroundFrame",
+    "GroundHeightMap",
+    "ball_plane",
+    "fit_ground_frame",
+    "ground_height_map",
+    "horizontal_distance",
+]
 
 _MAX_GROUND_TILT_DEG = 15.0
 """A ground fit tilted more than this from the balls' plane has found something else (a wall, a slope)."""
@@ -179,3 +187,61 @@ def _local_ground_height(ground_world: np.ndarray, trunk_xy: np.ndarray, radius_
     coefficients, *_ = np.linalg.lstsq(design, ground_world[near, 2], rcond=None)
     return float(coefficients[0])
 
+
+
+@dataclass(frozen=True)
+class GroundHeightMap:
+    """The ground's height on a square grid of cells in the world frame, for heights above local ground.
+
+    Orchard floors undulate by more than the few centimetres that separate grass from the lowest twigs; a
+    single plane would leave a rise at the edge of the region of interest above the tree's clearance.
+    """
+
+    origin_xy_m: np.ndarray
+    cell_m: float
+    heights_m: np.ndarray
+
+    def height_at(self, xy_m: np.ndarray) -> np.ndarray:
+        """Ground height below each ``(N, 2)`` horizontal position (nearest cell; edges extend outwards)."""
+        index = np.floor((xy_m - self.origin_xy_m) / self.cell_m).astype(np.int64)
+        rows = np.clip(index[:, 0], 0, self.heights_m.shape[0] - 1)
+        cols = np.clip(index[:, 1], 0, self.heights_m.shape[1] - 1)
+        return self.heights_m[rows, cols]
+
+    def height_above(self, points_m: np.ndarray) -> np.ndarray:
+        """Each world point's height above the ground below it."""
+        return points_m[:, 2] - self.height_at(points_m[:, :2])
+
+
+def ground_height_map(
+    points_m: np.ndarray, *, radius_m: float, cell_m: float = 0.2, band_m: float = 0.2, quantile: float = 0.2
+) -> GroundHeightMap:
+    """Estimate the ground's height per cell from world points (z = 0 at the trunk's foot).
+
+    Each cell takes a low quantile of its points within ``band_m`` of z = 0 (grass, stones and the trunk's
+    foot stand above the ground, rarely below); cells where no ground was seen (under the crown, behind the
+    trunk) take the nearest seen cell's height, and with no ground seen at all the map is flat at 0.
+    """
+    size = int(np.ceil(2 * radius_m / cell_m))
+    origin = np.array([-radius_m, -radius_m])
+    low = points_m[np.abs(points_m[:, 2]) < band_m]
+    index = np.floor((low[:, :2] - origin) / cell_m).astype(np.int64)
+    inside = (index >= 0).all(axis=1) & (index < size).all(axis=1)
+    low, index = low[inside], index[inside]
+    heights = np.zeros((size, size))
+    if low.shape[0] == 0:
+        return GroundHeightMap(origin_xy_m=origin, cell_m=cell_m, heights_m=heights)
+    cell = index[:, 0] * size + index[:, 1]
+    order = np.lexsort((low[:, 2], cell))
+    cell, z = cell[order], low[order, 2]
+    starts = np.flatnonzero(np.r_[True, cell[1:] != cell[:-1]])
+    counts = np.diff(np.r_[starts, cell.size])
+    picked = z[starts + np.floor(quantile * (counts - 1)).astype(np.int64)]
+    seen = np.zeros(size * size, dtype=bool)
+    seen[cell[starts]] = True
+    heights.ravel()[cell[starts]] = picked
+    seen_cells = np.column_stack(np.nonzero(seen.reshape(size, size)))
+    all_cells = np.indices((size, size)).reshape(2, -1).T
+    _, nearest = cKDTree(seen_cells).query(all_cells)
+    filled = heights[seen_cells[nearest, 0], seen_cells[nearest, 1]].reshape(size, size)
+    return GroundHeightMap(origin_xy_m=origin, cell_m=cell_m, heights_m=filled)

@@ -21,8 +21,14 @@ from canopy_core.balls import SphereFit, detect_balls
 from canopy_core.capture import Capture, CaptureManifest, View, load_capture
 from canopy_core.config import FilterConfig, MeasureConfig
 from canopy_core.errors import MeasurementError, RegistrationFailed
-from canopy_core.filters import reliable_depth_mask, statistical_inliers
-from canopy_core.ground import GroundFrame, fit_ground_frame, horizontal_distance
+from canopy_core.filters import reliable_depth_mask, sparse_point_mask
+from canopy_core.ground import (
+    GroundFrame,
+    GroundHeightMap,
+    fit_ground_frame,
+    ground_height_map,
+    horizontal_distance,
+)
 from canopy_core.metrics import CanopyMetrics, canopy_metrics
 from canopy_core.refine import IcpRefinement, refine_views
 from canopy_core.register import apply, register_by_balls
@@ -51,7 +57,7 @@ class ViewDiagnostics:
     depth_pixels: int
     flying_pixels_removed: int
     roi_points: int
-    outliers_removed: int
+    sparse_points_removed: int
     tree_points: int
     balls: dict[str, SphereFit]
     ball_residual_m: float
@@ -64,7 +70,7 @@ class ViewDiagnostics:
             "depth_pixels": self.depth_pixels,
             "flying_pixels_removed": self.flying_pixels_removed,
             "roi_points": self.roi_points,
-            "outliers_removed": self.outliers_removed,
+            "sparse_points_removed": self.sparse_points_removed,
             "tree_points": self.tree_points,
             "balls": {color: fit.to_dict() for color, fit in self.balls.items()},
             "ball_residual_m": self.ball_residual_m,
@@ -208,8 +214,8 @@ def measure(
     ground = _ground_frame(clouds, view_to_reference, centres[0], config)
     world_from_view = [ground.world_from_reference @ pose for pose in view_to_reference]
     roi_points, roi_colors, outliers = [], [], []
-    for cloud, pose in zip(clouds, world_from_view, strict=True):
-        points, colors_rgb, dropped = _roi_cloud(cloud, pose, config)
+    for view, cloud, pose in zip(capture.views, clouds, world_from_view, strict=True):
+        points, colors_rgb, dropped = _roi_cloud(cloud, pose, view.camera.depth.fx, config)
         roi_points.append(points)
         roi_colors.append(colors_rgb)
         outliers.append(dropped)
@@ -225,7 +231,10 @@ def measure(
     stages.start("metrics")
     balls_world = apply(ground.world_from_reference, centres[0])
     trunk_xy = np.array(ground.trunk_xy_m)
-    tree_masks = _tree_masks(roi_points, balls_world, trunk_xy, config)
+    ground_map = ground_height_map(
+        np.concatenate(roi_points), radius_m=config.roi.radius_m, band_m=config.ground.search_band_m
+    )
+    tree_masks = _tree_masks(roi_points, balls_world, trunk_xy, ground_map, config)
     modes: dict[str, CanopyMetrics] = {}
     for view, points, mask in zip(capture.views, roi_points, tree_masks, strict=True):
         modes[view.name] = _metrics_or_fail(points[mask], trunk_xy, config, view=view.name)
@@ -238,7 +247,7 @@ def measure(
             depth_pixels=int(np.count_nonzero(view.depth_raw)),
             flying_pixels_removed=removed[i],
             roi_points=int(roi_points[i].shape[0]),
-            outliers_removed=outliers[i],
+            sparse_points_removed=outliers[i],
             tree_points=int(np.count_nonzero(tree_masks[i])),
             balls=balls[i],
             ball_residual_m=residuals[i],
@@ -298,31 +307,41 @@ def _ground_frame(
     )
 
 
-def _roi_cloud(cloud: ViewCloud, world_from_view: np.ndarray, config: MeasureConfig) -> tuple[np.ndarray, np.ndarray, int]:
-    """A view's points inside the region of interest, in the world frame, without statistical outliers."""
+def _roi_cloud(
+    cloud: ViewCloud, world_from_view: np.ndarray, focal_px: float, config: MeasureConfig
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """A view's points inside the region of interest, in the world frame, without stray points."""
     world = apply(world_from_view, cloud.points_m)
     up = np.array([0.0, 0.0, 1.0])
     inside = (horizontal_distance(world, np.zeros(3), up) < config.roi.radius_m) & (
         world[:, 2] < config.roi.max_height_m
     )
     inside &= world[:, 2] > -config.ground.search_band_m
-    world, colors = world[inside], cloud.colors_rgb[inside]
-    kept = statistical_inliers(
-        world, neighbors=config.filters.outlier_neighbors, std_ratio=config.filters.outlier_std_ratio
+    dense = sparse_point_mask(
+        world[inside],
+        range_m=cloud.points_m[inside, 2],
+        focal_px=focal_px,
+        radius_px=config.filters.sparse_radius_px,
+        min_neighbors=config.filters.sparse_min_neighbors,
     )
-    return world[kept], colors[kept], int(world.shape[0] - kept.size)
+    kept = np.flatnonzero(inside)[dense]
+    return world[kept], cloud.colors_rgb[kept], int(np.count_nonzero(inside) - kept.size)
 
 
 def _tree_masks(
-    roi_points: list[np.ndarray], balls_world: np.ndarray, trunk_xy: np.ndarray, config: MeasureConfig
+    roi_points: list[np.ndarray],
+    balls_world: np.ndarray,
+    trunk_xy: np.ndarray,
+    ground_map: GroundHeightMap,
+    config: MeasureConfig,
 ) -> list[np.ndarray]:
-    """Per view, the points of the tree: above the ground clearance, off the balls, connected to the trunk.
+    """Per view, the points of the tree: above the local ground's clearance, off the balls, not intruders.
 
     Connectivity is decided on all views together, where the tree is most complete.
     """
     masks = []
     for points in roi_points:
-        mask = points[:, 2] > _TREE_CLEARANCE_M
+        mask = ground_map.height_above(points) > _TREE_CLEARANCE_M
         for centre in balls_world:
             mask &= np.linalg.norm(points - centre, axis=1) > config.balls.radius_m * 1.5 + 0.02
         masks.append(mask)

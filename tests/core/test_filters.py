@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from canopy_core.filters import reliable_depth_mask, statistical_inliers
+from canopy_core.filters import reliable_depth_mask, sparse_point_mask
 
 
 def _edge_scene() -> np.ndarray:
@@ -43,19 +43,22 @@ def test_out_of_range_and_missing_readings_are_dropped() -> None:
     assert keep.sum() == 97
 
 
-def test_statistical_outlier_removal_drops_isolated_points() -> None:
+def test_lone_points_go_and_a_five_pixel_leaf_stays() -> None:
     rng = np.random.default_rng(0)
-    dense = rng.normal(0, 0.05, size=(3000, 3))
-    strays = rng.uniform(1.0, 2.0, size=(10, 3))
-    kept = statistical_inliers(np.vstack([dense, strays]), neighbors=16, std_ratio=2.5)
-    assert not np.isin(np.arange(3000, 3010), kept).any()
-    assert np.isin(np.arange(3000), kept).mean() > 0.95
+    pixel_m = 3.0 / 365.0  # a Kinect v2 pixel's footprint at 3 m
+    grid = np.arange(-0.4, 0.4, pixel_m)
+    surface = np.column_stack([*(axis.ravel() for axis in np.meshgrid(grid, grid)), np.full(grid.size**2, 3.0)])
+    leaf = np.column_stack([0.8 + pixel_m * np.array([[0, 0], [0, 1], [1, 0], [1, 1], [2, 1]]), np.full(5, 3.0)])
+    strays = np.column_stack([rng.uniform(-1, 1, (20, 2)), rng.uniform(3.2, 5.0, 20)])
+    points = np.vstack([surface, leaf, strays])
+    keep = sparse_point_mask(points, range_m=points[:, 2], focal_px=365.0)
+    assert keep[: len(surface) + 5].all() and not keep[len(surface) + 5 :].any()
 
 
-def test_flying_pixels_beside_missing_background_are_removed() -> None:
-    """A leaf before a background beyond the sensor's range: the mixed pixels have no farther reading."""
-    depth = _edge_scene()
-    depth[:, 42:] = 0.0
+def test_dropouts_do_not_make_a_crown_top_against_the_sky_flying() -> None:
+    """Leaves at the top of a crown: readings 2.9-3.0 m interleaved with dropouts (sky)."""
+    rng = np.random.default_rng(1)
+    depth = rng.uniform(2.9, 3.0, size=(20, 20)).astype(np.float32)
+    depth[rng.random((20, 20)) < 0.4] = 0.0
     keep = reliable_depth_mask(depth)
-    assert not keep[:, 40].any() and not keep[:, 41].any()
-    assert keep[:, :40].all()
+    assert keep[depth > 0].all()
