@@ -55,7 +55,7 @@ class BallConfig(_Section):
         0.008, gt=0.0, description="A point is a sphere inlier when its distance to the surface is below this."
     )
     max_radius_error: float = Field(
-        0.15, gt=0.0, lt=1.0, description="Largest relative difference of the fitted and the true radius."
+        0.25, gt=0.0, lt=1.0, description="Largest relative difference of the fitted and the true radius."
     )
     max_rms_m: float = Field(0.012, gt=0.0, description="Largest RMS distance of inliers to the fitted sphere.")
     ransac_iterations: int = Field(300, ge=10)
@@ -144,16 +144,18 @@ class MetricsConfig(_Section):
     top_support_points: int = Field(4, ge=1)
     kde_bandwidth_m: float = Field(0.04, gt=0.0, description="Gaussian kernel bandwidth h of eq. 7, metres.")
     kde_threshold: float = Field(
-        0.25,
+        0.6,
         gt=0.0,
         description="Crown base z_f of eq. 8: the lowest z where f(z) * H first exceeds this (dimensionless: "
         "1 is the density of points spread evenly over the tree's height).",
     )
     voxel_volume_m: float = Field(0.05, gt=0.0, description="Voxel edge for the occupied-voxel crown volume.")
     crown_base_min_radius_m: float = Field(
-        0.25, gt=0.0, description="Geometric crown base: lowest slice whose points spread wider than this."
+        0.25, gt=0.0, description="Crown base: points this far from the trunk's axis count as crown."
     )
-    slice_m: float = Field(0.05, gt=0.0, description="Height of the slices for the geometric crown base.")
+    foliage_min_exgr: float = Field(
+        0.15, description="Points whose ExGR vegetation index exceeds this are foliage (crown base)."
+    )
 
 
 class MeasureConfig(_Section):

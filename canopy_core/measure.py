@@ -21,6 +21,7 @@ from canopy_core.balls import SphereFit, detect_balls
 from canopy_core.capture import Capture, CaptureManifest, View, load_capture
 from canopy_core.config import FilterConfig, MeasureConfig
 from canopy_core.errors import MeasurementError, RegistrationFailed
+from canopy_core.foliage import foliage_mask
 from canopy_core.filters import reliable_depth_mask, sparse_point_mask
 from canopy_core.ground import (
     GroundFrame,
@@ -235,11 +236,17 @@ def measure(
         np.concatenate(roi_points), radius_m=config.roi.radius_m, band_m=config.ground.search_band_m
     )
     tree_masks = _tree_masks(roi_points, balls_world, trunk_xy, ground_map, config)
+    foliage = [foliage_mask(colors, min_index=config.metrics.foliage_min_exgr) for colors in roi_colors]
     modes: dict[str, CanopyMetrics] = {}
-    for view, points, mask in zip(capture.views, roi_points, tree_masks, strict=True):
-        modes[view.name] = _metrics_or_fail(points[mask], trunk_xy, config, view=view.name)
-    merged_tree = np.concatenate([points[mask] for points, mask in zip(roi_points, tree_masks, strict=True)])
-    modes[MERGED] = _metrics_or_fail(merged_tree, trunk_xy, config, view=None)
+    for view, points, leafy, mask in zip(capture.views, roi_points, foliage, tree_masks, strict=True):
+        modes[view.name] = _metrics_or_fail(points[mask], leafy[mask], trunk_xy, config, view=view.name)
+    modes[MERGED] = _metrics_or_fail(
+        np.concatenate([points[mask] for points, mask in zip(roi_points, tree_masks, strict=True)]),
+        np.concatenate([leafy[mask] for leafy, mask in zip(foliage, tree_masks, strict=True)]),
+        trunk_xy,
+        config,
+        view=None,
+    )
 
     diagnostics = tuple(
         ViewDiagnostics(
@@ -353,11 +360,13 @@ def _tree_masks(
     return masks
 
 
-def _metrics_or_fail(points: np.ndarray, trunk_xy: np.ndarray, config: MeasureConfig, *, view: str | None) -> CanopyMetrics:
+def _metrics_or_fail(
+    points: np.ndarray, foliage: np.ndarray, trunk_xy: np.ndarray, config: MeasureConfig, *, view: str | None
+) -> CanopyMetrics:
     if points.shape[0] < 50:
         raise MeasurementError(
             f"only {points.shape[0]} tree points inside the region of interest",
             view=view,
             hint="check that the tree stands among the balls and inside roi.radius_m",
         )
-    return canopy_metrics(points, trunk_xy_m=trunk_xy, config=config.metrics)
+    return canopy_metrics(points, trunk_xy_m=trunk_xy, foliage=foliage, config=config.metrics)

@@ -127,15 +127,25 @@ def crown_base_kde(z_m: np.ndarray, *, height_m: float, bandwidth_m: float, thre
 
 
 def crown_base_geometric(
-    points_m: np.ndarray, trunk_xy_m: np.ndarray, *, min_radius_m: float, support_radius_m: float, support_points: int
+    points_m: np.ndarray,
+    trunk_xy_m: np.ndarray,
+    *,
+    foliage: np.ndarray | None = None,
+    min_radius_m: float,
+    support_radius_m: float,
+    support_points: int,
 ) -> float:
-    """Crown base as the lowest supported point farther than ``min_radius_m`` from the trunk's axis.
+    """Crown base: the lowest supported point of foliage, or of anything spreading away from the trunk.
 
-    Foliage and branches spread away from the trunk; the trunk, and what stands near its foot, does not.
-    A point counts only with ``support_points`` neighbours within ``support_radius_m`` (no stray points).
+    A point is crown when its colour is foliage (``foliage`` mask, see :mod:`canopy_core.foliage`) or
+    when it lies farther than ``min_radius_m`` from the trunk's axis (branches and leaves spread out; the
+    trunk does not), which also serves points without colour. It counts only with ``support_points``
+    neighbours within ``support_radius_m``, so no stray point sets the base.
     """
-    far = np.linalg.norm(points_m[:, :2] - trunk_xy_m, axis=1) > min_radius_m
-    candidates = points_m[far]
+    crown = np.linalg.norm(points_m[:, :2] - trunk_xy_m, axis=1) > min_radius_m
+    if foliage is not None:
+        crown |= foliage
+    candidates = points_m[crown]
     if candidates.shape[0] == 0:
         return float(points_m[:, 2].min())
     order = np.argsort(candidates[:, 2])[:5000]
@@ -173,8 +183,10 @@ def voxel_volume(points_m: np.ndarray, *, voxel_m: float) -> float:
     return float(cells.shape[0] * voxel_m**3)
 
 
-def canopy_metrics(points_m: np.ndarray, *, trunk_xy_m: np.ndarray, config: MetricsConfig) -> CanopyMetrics:
-    """All metrics of one tree cloud in the world frame.
+def canopy_metrics(
+    points_m: np.ndarray, *, trunk_xy_m: np.ndarray, foliage: np.ndarray | None = None, config: MetricsConfig
+) -> CanopyMetrics:
+    """All metrics of one tree cloud in the world frame; ``foliage`` marks the points coloured as leaves.
 
     ``thickness_m`` and ``crown_base_m`` are the geometric estimates (the more accurate on trees with a
     clear trunk); ``thickness_kde_m`` and ``crown_base_kde_m`` follow the paper's eqs. 7-8.
@@ -188,6 +200,7 @@ def canopy_metrics(points_m: np.ndarray, *, trunk_xy_m: np.ndarray, config: Metr
     base_geometric = crown_base_geometric(
         points_m,
         trunk_xy_m,
+        foliage=foliage,
         min_radius_m=config.crown_base_min_radius_m,
         support_radius_m=config.top_support_radius_m,
         support_points=config.top_support_points,
