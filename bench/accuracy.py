@@ -57,7 +57,10 @@ def main() -> None:
     options = parser.parse_args()
 
     with tempfile.TemporaryDirectory(prefix="canopy-bench-") as scratch:
-        work = [(Path(scratch) / f"tree_{i:03d}", options.seed * 1000 + i, options.views) for i in range(options.count)]
+        work = [
+            (Path(scratch) / f"tree_{i:03d}", options.seed * 1000 + i, options.views)
+            for i in range(options.count)
+        ]
         with ProcessPoolExecutor(max_workers=options.jobs) as pool:
             results = list(pool.map(_measure_one, work))
 

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from canopy_core.errors import CanopyError
 from canopy_core.measure import measure
 from canopy_core.register import invert, pose_change
 from canopy_core.simulate import simulate_capture
@@ -27,15 +28,23 @@ def _errors(args: tuple[Path, int, int]) -> list[dict]:
     folder, seed, views = args
     capture = simulate_capture(folder, seed=seed, n_views=views)
     truth = json.loads((capture / "ground_truth.json").read_text())["views"]
-    refined = measure(capture)
-    balls_only = measure(capture, overrides={"icp": {"enabled": False}})
+    try:
+        refined = measure(capture)
+        balls_only = measure(capture, overrides={"icp": {"enabled": False}})
+    except CanopyError as exc:
+        print(f"seed {seed}: failed: {exc}")
+        return []
     rows = []
     first = refined.views[0].view
     true_first = np.asarray(truth[first]["camera_to_world"])
     for index in range(1, len(refined.views)):
         name = refined.views[index].view
         true_relative = invert(true_first) @ np.asarray(truth[name]["camera_to_world"])
-        row = {"seed": seed, "view": name, "accepted": bool(refined.views[index].icp and refined.views[index].icp.accepted)}
+        row = {
+            "seed": seed,
+            "view": name,
+            "accepted": bool(refined.views[index].icp and refined.views[index].icp.accepted),
+        }
         for label, result in (("balls", balls_only), ("icp", refined)):
             relative = invert(result.views[0].world_from_view) @ result.views[index].world_from_view
             row[label] = pose_change(true_relative, relative)
@@ -51,7 +60,9 @@ def main() -> None:
     parser.add_argument("--jobs", type=int, default=2)
     options = parser.parse_args()
     with tempfile.TemporaryDirectory(prefix="canopy-reg-") as scratch:
-        work = [(Path(scratch) / f"t{i}", options.seed * 1000 + i, options.views) for i in range(options.count)]
+        work = [
+            (Path(scratch) / f"t{i}", options.seed * 1000 + i, options.views) for i in range(options.count)
+        ]
         with ProcessPoolExecutor(max_workers=options.jobs) as pool:
             rows = [row for rows in pool.map(_errors, work) for row in rows]
     print(f"{len(rows)} view pairs, {options.views} views per tree")
@@ -65,7 +76,10 @@ def main() -> None:
         )
     accepted = [row for row in rows if row["accepted"]]
     better = [row for row in accepted if row["icp"][0] < row["balls"][0]]
-    print(f"ICP accepted for {len(accepted)} of {len(rows)} views; closer to the truth in {len(better)} of those")
+    print(
+        f"ICP accepted for {len(accepted)} of {len(rows)} views; "
+        f"closer to the truth in {len(better)} of those"
+    )
 
 
 if __name__ == "__main__":

@@ -390,7 +390,7 @@ def detect_balls(cloud: ViewCloud, config: BallConfig) -> dict[str, SphereFit]:
     Parameters
     ----------
     cloud
-        The view's back-projected points, unfiltered: the fit copes with flying pixels itself.
+        The view's back-projected points, filtered or not (the fit copes with flying pixels itself).
     config
         Ball size, colours and detection thresholds.
 
@@ -422,7 +422,7 @@ def detect_ball(cloud: ViewCloud, color: str, config: BallConfig) -> SphereFit:
     Parameters
     ----------
     cloud
-        The view's back-projected points, unfiltered: the fit copes with flying pixels itself.
+        The view's back-projected points, filtered or not (the fit copes with flying pixels itself).
     color
         A colour name with an HSV range in ``config`` (its own or a default one).
     config

@@ -275,7 +275,9 @@ def _read(root: Path, relative: str, *, view: str | None) -> bytes:
 
 def load_view(root: Path, name: str, *, max_pixels: int = DEFAULT_MAX_PIXELS) -> View:
     """Load and check one view folder (``root / name``) of a capture."""
-    camera = parse_camera(_read(root, f"{name}/camera.json", view=name), file=f"{name}/camera.json", view=name)
+    camera = parse_camera(
+        _read(root, f"{name}/camera.json", view=name), file=f"{name}/camera.json", view=name
+    )
     depth = decode_depth(
         _read(root, f"{name}/depth.png", view=name),
         file=f"{name}/depth.png",
@@ -285,7 +287,9 @@ def load_view(root: Path, name: str, *, max_pixels: int = DEFAULT_MAX_PIXELS) ->
     )
     present = [file for file in color_file_names(name) if (root / file).is_file()]
     if not present:
-        raise CaptureError("colour image is missing (color.png or color.jpg)", file=f"{name}/color.png", view=name)
+        raise CaptureError(
+            "colour image is missing (color.png or color.jpg)", file=f"{name}/color.png", view=name
+        )
     if len(present) > 1:
         raise CaptureError("both color.png and color.jpg are present; keep one", file=present[0], view=name)
     color = decode_color(

@@ -44,7 +44,8 @@ def measure(
     capture: CaptureArg,
     as_json: JsonOpt = False,
     cloud: Annotated[
-        Path | None, typer.Option("--cloud", help="Write the fused, cropped cloud (world frame) as binary PLY.")
+        Path | None,
+        typer.Option("--cloud", help="Write the fused, cropped cloud (world frame) as binary PLY."),
     ] = None,
 ) -> None:
     """Register the views of a capture and measure the tree: height, width, thickness and more."""
@@ -82,14 +83,20 @@ def balls(capture: CaptureArg, as_json: JsonOpt = False) -> None:
         found[view.name] = detect_balls(cloud, config.balls)
     if as_json:
         _print_json(
-            {"views": {name: {color: fit.to_dict() for color, fit in fits.items()} for name, fits in found.items()}}
+            {
+                "views": {
+                    name: {color: fit.to_dict() for color, fit in fits.items()}
+                    for name, fits in found.items()
+                }
+            }
         )
         return
     for name, fits in found.items():
         for color, fit in fits.items():
             x, y, z = fit.center_m
             typer.echo(
-                f"{name} {color:<7} centre ({x:+.3f}, {y:+.3f}, {z:+.3f}) m  radius {fit.radius_m * 1000:.1f} mm  "
+                f"{name} {color:<7} centre ({x:+.3f}, {y:+.3f}, {z:+.3f}) m  "
+                f"radius {fit.radius_m * 1000:.1f} mm  "
                 f"{fit.points} points  rms {fit.rms_m * 1000:.1f} mm"
             )
 

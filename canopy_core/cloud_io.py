@@ -16,14 +16,14 @@ def write_ply(path: str | Path, points_m: np.ndarray, colors_rgb: np.ndarray | N
     if colors_rgb is not None:
         cloud.colors = o3d.utility.Vector3dVector(np.asarray(colors_rgb, dtype=np.float64) / 255.0)
     target = Path(path)
-    if not o3d.io.write_point_cloud(str(target), cloud, write_ascii=False, compressed=False):
+    if not o3d.io.write_point_cloud(target, cloud, write_ascii=False, compressed=False):
         raise OSError(f"could not write the point cloud to {target}")
     return target
 
 
 def read_ply(path: str | Path) -> tuple[np.ndarray, np.ndarray | None]:
     """Points (m) and, when the file has them, uint8 RGB colours of a PLY file."""
-    cloud = o3d.io.read_point_cloud(str(path))
+    cloud = o3d.io.read_point_cloud(Path(path))
     if not cloud.has_points():
         raise OSError(f"{path} holds no points or is not a readable PLY file")
     colors = np.rint(np.asarray(cloud.colors) * 255).astype(np.uint8) if cloud.has_colors() else None

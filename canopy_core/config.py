@@ -52,12 +52,16 @@ class BallConfig(_Section):
     )
     min_points: int = Field(12, ge=4, description="Fewest ball-coloured surface points a ball may have.")
     inlier_tolerance_m: float = Field(
-        0.008, gt=0.0, description="A point is a sphere inlier when its distance to the surface is below this."
+        0.008,
+        gt=0.0,
+        description="A point is a sphere inlier when its distance to the surface is below this.",
     )
     max_radius_error: float = Field(
         0.25, gt=0.0, lt=1.0, description="Largest relative difference of the fitted and the true radius."
     )
-    max_rms_m: float = Field(0.012, gt=0.0, description="Largest RMS distance of inliers to the fitted sphere.")
+    max_rms_m: float = Field(
+        0.012, gt=0.0, description="Largest RMS distance of inliers to the fitted sphere."
+    )
     ransac_iterations: int = Field(300, ge=10)
 
     @field_validator("colors")
@@ -126,13 +130,19 @@ class IcpConfig(_Section):
     """ICP refinement after the ball registration (``refine.py``)."""
 
     enabled: bool = True
-    voxel_m: float = Field(0.01, gt=0.0, description="Voxel size the clouds are thinned to for ICP.")
-    max_correspondence_m: float = Field(0.03, gt=0.0)
-    max_iterations: int = Field(40, ge=1)
-    max_translation_m: float = Field(
-        0.05, gt=0.0, description="A refinement moving a view farther than this from the balls is rejected."
+    max_height_m: float = Field(
+        0.6,
+        gt=0.0,
+        description="ICP uses the points below this height: ground, trunk foot and balls, which views from "
+        "opposite sides of a row both see (their foliage surfaces differ).",
     )
-    max_rotation_deg: float = Field(2.0, gt=0.0)
+    voxel_m: float = Field(0.02, gt=0.0, description="Voxel size the clouds are thinned to for ICP.")
+    max_correspondence_m: float = Field(0.03, gt=0.0)
+    max_iterations: int = Field(30, ge=1)
+    max_ball_shift_m: float = Field(
+        0.01, gt=0.0, description="A refinement moving any ball centre farther than this is rejected."
+    )
+    max_rotation_deg: float = Field(0.5, gt=0.0, description="A refinement turning a view more is rejected.")
 
 
 class MetricsConfig(_Section):

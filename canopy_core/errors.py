@@ -57,6 +57,11 @@ class CanopyError(Exception):
             text = f"{text} (field {self.field})"
         return f"{text}. {self.hint}" if self.hint else text
 
+    def __reduce__(self) -> tuple[object, ...]:
+        # Keyword-only locations would be lost by Exception's default pickling (it replays ``args``);
+        # errors must cross process boundaries intact (worker children, process pools).
+        return (_rebuild, (type(self), dict(self.__dict__)))
+
     def to_dict(self) -> dict[str, str]:
         """The error as a flat JSON object: ``code``, ``message`` and whichever locations are known."""
         out = {"code": self.code, "message": self.message}
@@ -65,6 +70,13 @@ class CanopyError(Exception):
             if value is not None:
                 out[key] = value
         return out
+
+
+def _rebuild(cls: type[CanopyError], state: dict[str, object]) -> CanopyError:
+    error = cls.__new__(cls)
+    Exception.__init__(error, state["message"])
+    error.__dict__.update(state)
+    return error
 
 
 class CaptureError(CanopyError):

@@ -61,7 +61,12 @@ def reliable_depth_mask(
 
 
 def sparse_point_mask(
-    points_m: np.ndarray, *, range_m: np.ndarray, focal_px: float, radius_px: float = 4.0, min_neighbors: int = 3
+    points_m: np.ndarray,
+    *,
+    range_m: np.ndarray,
+    focal_px: float,
+    radius_px: float = 4.0,
+    min_neighbors: int = 3,
 ) -> np.ndarray:
     """Mask of points that have at least ``min_neighbors`` others within a few pixels' footprint.
 

@@ -75,7 +75,9 @@ def _plane_fit(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def _ransac_ground(points: np.ndarray, tolerance_m: float) -> np.ndarray:
     """Indices (into ``points``) of the dominant plane's inliers."""
     rng = np.random.default_rng(0)
-    sample = points if points.shape[0] <= _RANSAC_SAMPLE else points[rng.choice(points.shape[0], _RANSAC_SAMPLE)]
+    sample = (
+        points if points.shape[0] <= _RANSAC_SAMPLE else points[rng.choice(points.shape[0], _RANSAC_SAMPLE)]
+    )
     o3d.utility.random.seed(0)
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(sample))
     (a, b, c, d), _ = cloud.segment_plane(distance_threshold=tolerance_m, ransac_n=3, num_iterations=300)
@@ -172,7 +174,7 @@ def _trunk_position(
 
 
 def _local_ground_height(ground_world: np.ndarray, trunk_xy: np.ndarray, radius_m: float) -> float:
-    """Ground height at the trunk: a quadratic surface through the ground points around it, read at its centre.
+    """Ground height at the trunk: a quadratic surface through the ground around it, read at its centre.
 
     A plane would carry the curvature of a bump or a ridge under the trunk into the height (about a
     centimetre for a 3 cm bump); a quadratic follows it.
@@ -186,7 +188,6 @@ def _local_ground_height(ground_world: np.ndarray, trunk_xy: np.ndarray, radius_
     design = np.column_stack([np.ones_like(x), x, y, x * x, x * y, y * y])
     coefficients, *_ = np.linalg.lstsq(design, ground_world[near, 2], rcond=None)
     return float(coefficients[0])
-
 
 
 @dataclass(frozen=True)

@@ -107,9 +107,7 @@ def decode_color(
     """
     image = _open(data, file=file, view=view, max_pixels=max_pixels)
     if image.mode not in _COLOR_MODES:
-        raise CaptureError(
-            f"colour must be 8-bit RGB; this image is mode {image.mode}", file=file, view=view
-        )
+        raise CaptureError(f"colour must be 8-bit RGB; this image is mode {image.mode}", file=file, view=view)
     rgb = np.asarray(image.convert("RGB") if image.mode != "RGB" else image, dtype=np.uint8)
     _check_size(rgb, expected_size, file=file, view=view, what="intrinsics")
     return rgb

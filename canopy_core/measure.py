@@ -21,8 +21,8 @@ from canopy_core.balls import SphereFit, detect_balls
 from canopy_core.capture import Capture, CaptureManifest, View, load_capture
 from canopy_core.config import FilterConfig, MeasureConfig
 from canopy_core.errors import MeasurementError, RegistrationFailed
-from canopy_core.foliage import foliage_mask
 from canopy_core.filters import reliable_depth_mask, sparse_point_mask
+from canopy_core.foliage import foliage_mask
 from canopy_core.ground import (
     GroundFrame,
     GroundHeightMap,
@@ -99,12 +99,13 @@ class Measurement:
         return self.modes[MERGED]
 
     def to_dict(self) -> dict[str, Any]:
-        """The JSON document of ``canopy measure --json``: merged metrics on top, then modes and diagnostics."""
+        """The document of ``canopy measure --json``: merged metrics on top, then modes and diagnostics."""
         ground = self.ground
         return {
             **self.merged.to_dict(),
             "capture": {
-                key: getattr(self.manifest, key) for key in ("orchard", "row", "tree", "captured_at", "sensor")
+                key: getattr(self.manifest, key)
+                for key in ("orchard", "row", "tree", "captured_at", "sensor")
             },
             "modes": {name: metrics.to_dict() for name, metrics in self.modes.items()},
             "registration": {
@@ -187,7 +188,9 @@ def measure(
 
     stages.start("filter")
     clouds = [filtered_cloud(view, config.filters) for view in capture.views]
-    removed = [int(np.count_nonzero(v.depth_raw)) - len(c) for v, c in zip(capture.views, clouds, strict=True)]
+    removed = [
+        int(np.count_nonzero(v.depth_raw)) - len(c) for v, c in zip(capture.views, clouds, strict=True)
+    ]
 
     stages.start("balls")
     balls = [detect_balls(cloud, config.balls) for cloud in clouds]
@@ -201,7 +204,9 @@ def measure(
         )
     centres = [np.array([found[color].center_m for color in colors]) for found in balls]
     view_to_reference = [register_by_balls(c, centres[0]) for c in centres]
-    residuals = [_ball_residual(pose, c, centres[0]) for pose, c in zip(view_to_reference, centres, strict=True)]
+    residuals = [
+        _ball_residual(pose, c, centres[0]) for pose, c in zip(view_to_reference, centres, strict=True)
+    ]
     for view, residual in zip(capture.views, residuals, strict=True):
         if residual > _MAX_BALL_RESIDUAL_M:
             raise RegistrationFailed(
@@ -224,7 +229,12 @@ def measure(
     stages.start("refine")
     icp_reports: list[IcpRefinement | None] = [None] * len(clouds)
     if config.icp.enabled and len(clouds) > 1:
-        corrections, reports = refine_views([v.name for v in capture.views], roi_points, config=config.icp)
+        corrections, reports = refine_views(
+            [v.name for v in capture.views],
+            [points[points[:, 2] < config.icp.max_height_m] for points in roi_points],
+            anchors_m=apply(ground.world_from_reference, centres[0]),
+            config=config.icp,
+        )
         roi_points = [apply(c, p) for c, p in zip(corrections, roi_points, strict=True)]
         world_from_view = [c @ pose for c, pose in zip(corrections, world_from_view, strict=True)]
         icp_reports = [None, *reports]
@@ -294,7 +304,10 @@ def _ball_residual(pose: np.ndarray, centres: np.ndarray, reference: np.ndarray)
 
 
 def _ground_frame(
-    clouds: list[ViewCloud], view_to_reference: list[np.ndarray], ball_centres: np.ndarray, config: MeasureConfig
+    clouds: list[ViewCloud],
+    view_to_reference: list[np.ndarray],
+    ball_centres: np.ndarray,
+    config: MeasureConfig,
 ) -> GroundFrame:
     """The world frame, fitted on a thinned sample of all views' points in the reference frame."""
     rng = np.random.default_rng(0)
@@ -353,7 +366,9 @@ def _tree_masks(
             mask &= np.linalg.norm(points - centre, axis=1) > config.balls.radius_m * 1.5 + 0.02
         masks.append(mask)
     candidates = np.concatenate([points[mask] for points, mask in zip(roi_points, masks, strict=True)])
-    connected = tree_component(candidates, trunk_xy, roi_radius_m=config.roi.radius_m, link_m=config.roi.link_m)
+    connected = tree_component(
+        candidates, trunk_xy, roi_radius_m=config.roi.radius_m, link_m=config.roi.link_m
+    )
     splits = np.cumsum([np.count_nonzero(mask) for mask in masks])[:-1]
     for mask, keep in zip(masks, np.split(connected, splits), strict=True):
         mask[mask] = keep

@@ -93,7 +93,9 @@ def max_horizontal_distance(points_m: np.ndarray) -> float:
     return float(np.sqrt((differences**2).sum(axis=2).max()))
 
 
-def height_density(z_m: np.ndarray, *, bandwidth_m: float, step_m: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+def height_density(
+    z_m: np.ndarray, *, bandwidth_m: float, step_m: float | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Gaussian kernel density f(z) = 1/(n h) sum K((z - z_i) / h) of the heights (eq. 7), per metre.
 
     Evaluated on a regular grid by binning and convolving with the sampled kernel, which is exact up to

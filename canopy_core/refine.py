@@ -4,8 +4,9 @@ Views from opposite sides of a row share little foliage; what they do share is t
 and the balls, so ICP runs on the region of interest with the ground in it. Pairwise point-to-plane ICP
 between every two views feeds an Open3D pose graph (multiway registration, the first view fixed); each
 view's refined pose is then accepted only if it brings the view closer to the others (median
-correspondence distance) and stays within a small distance of the ball registration, which is accurate on
-its own. Otherwise the ball pose is kept and the reason reported.
+correspondence distance) and stays close to the ball registration, which is accurate on
+its own: a refinement may not move the balls by more than their registration leaves open. Otherwise the
+ball pose is kept and the reason reported.
 """
 
 from __future__ import annotations
@@ -52,6 +53,7 @@ class IcpRefinement:
     after: AlignmentQuality
     translation_change_m: float
     rotation_change_deg: float
+    ball_shift_m: float
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict."""
@@ -74,7 +76,9 @@ def alignment_quality(points_m: np.ndarray, others: cKDTree, *, max_distance_m: 
 
 def _thinned(points_m: np.ndarray, voxel_m: float) -> o3d.geometry.PointCloud:
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points_m)).voxel_down_sample(voxel_m)
-    cloud.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=4 * voxel_m, max_nn=_NORMAL_NEIGHBOURS))
+    cloud.estimate_normals(
+        o3d.geometry.KDTreeSearchParamHybrid(radius=4 * voxel_m, max_nn=_NORMAL_NEIGHBOURS)
+    )
     return cloud
 
 
@@ -95,7 +99,9 @@ def _pose_graph(clouds: list[o3d.geometry.PointCloud], config: IcpConfig) -> lis
                 clouds[source], clouds[target], config.max_correspondence_m, result.transformation
             )
             graph.edges.append(
-                registration.PoseGraphEdge(source, target, result.transformation, information, uncertain=False)
+                registration.PoseGraphEdge(
+                    source, target, result.transformation, information, uncertain=False
+                )
             )
     option = registration.GlobalOptimizationOption(
         max_correspondence_distance=config.max_correspondence_m, edge_prune_threshold=0.25, reference_node=0
@@ -112,7 +118,7 @@ def _pose_graph(clouds: list[o3d.geometry.PointCloud], config: IcpConfig) -> lis
 
 
 def refine_views(
-    view_names: list[str], points_m: list[np.ndarray], *, config: IcpConfig
+    view_names: list[str], points_m: list[np.ndarray], *, anchors_m: np.ndarray, config: IcpConfig
 ) -> tuple[list[np.ndarray], list[IcpRefinement]]:
     """Refine the poses of views already brought into one frame by the balls.
 
@@ -122,6 +128,9 @@ def refine_views(
         The views, the first one the reference (never moved).
     points_m
         Each view's region-of-interest points in the common frame after the ball registration.
+    anchors_m
+        The ball centres in the common frame: a refinement may not move them farther than
+        ``config.max_ball_shift_m``, since the balls registered each view to within a few millimetres.
     config
         ICP settings and the acceptance bounds.
 
@@ -139,15 +148,25 @@ def refine_views(
     poses = _pose_graph(clouds, config)
     reports = []
     for index in range(1, len(points_m)):
-        others = np.concatenate([apply(corrections[j], thinned[j]) for j in range(len(thinned)) if j != index])
+        others = np.concatenate(
+            [apply(corrections[j], thinned[j]) for j in range(len(thinned)) if j != index]
+        )
         others_tree = cKDTree(others)
         before = alignment_quality(thinned[index], others_tree, max_distance_m=config.max_correspondence_m)
-        after = alignment_quality(apply(poses[index], thinned[index]), others_tree, max_distance_m=config.max_correspondence_m)
+        after = alignment_quality(
+            apply(poses[index], thinned[index]), others_tree, max_distance_m=config.max_correspondence_m
+        )
         translation, rotation = pose_change(np.eye(4), poses[index])
-        if translation > config.max_translation_m or rotation > config.max_rotation_deg:
-            accepted, reason = False, (
-                f"moved {translation * 1000:.0f} mm / {rotation:.2f} deg from the ball registration, more than "
-                f"the {config.max_translation_m * 1000:.0f} mm / {config.max_rotation_deg:.1f} deg allowed"
+        ball_shift = float(np.linalg.norm(apply(poses[index], anchors_m) - anchors_m, axis=1).max())
+        if ball_shift > config.max_ball_shift_m or rotation > config.max_rotation_deg:
+            accepted, reason = (
+                False,
+                (
+                    f"would move the balls by {ball_shift * 1000:.0f} mm and turn the view "
+                    f"{rotation:.2f} deg, more than the {config.max_ball_shift_m * 1000:.0f} mm / "
+                    f"{config.max_rotation_deg:.1f} deg "
+                    "the ball registration leaves open"
+                ),
             )
         elif not after.distance_p50_m < before.distance_p50_m:
             accepted, reason = False, "did not bring the view closer to the others (median distance)"
@@ -164,6 +183,7 @@ def refine_views(
                 after=after,
                 translation_change_m=translation,
                 rotation_change_deg=rotation,
+                ball_shift_m=ball_shift,
             )
         )
     return corrections, reports

@@ -47,8 +47,12 @@ def test_lone_points_go_and_a_five_pixel_leaf_stays() -> None:
     rng = np.random.default_rng(0)
     pixel_m = 3.0 / 365.0  # a Kinect v2 pixel's footprint at 3 m
     grid = np.arange(-0.4, 0.4, pixel_m)
-    surface = np.column_stack([*(axis.ravel() for axis in np.meshgrid(grid, grid)), np.full(grid.size**2, 3.0)])
-    leaf = np.column_stack([0.8 + pixel_m * np.array([[0, 0], [0, 1], [1, 0], [1, 1], [2, 1]]), np.full(5, 3.0)])
+    surface = np.column_stack(
+        [*(axis.ravel() for axis in np.meshgrid(grid, grid)), np.full(grid.size**2, 3.0)]
+    )
+    leaf = np.column_stack(
+        [0.8 + pixel_m * np.array([[0, 0], [0, 1], [1, 0], [1, 1], [2, 1]]), np.full(5, 3.0)]
+    )
     strays = np.column_stack([rng.uniform(-1, 1, (20, 2)), rng.uniform(3.2, 5.0, 20)])
     points = np.vstack([surface, leaf, strays])
     keep = sparse_point_mask(points, range_m=points[:, 2], focal_px=365.0)

@@ -38,7 +38,9 @@ def _camera_from_world() -> np.ndarray:
     """A level camera 1.2 m high, 3 m from the trunk on the -y side, looking along +y (OpenCV axes)."""
     world_from_camera = np.eye(4)
     world_from_camera[:3, :3] = np.column_stack([[1, 0, 0], [0, 0, -1], [0, 1, 0]])
-    world_from_camera[:3, :3] = Rotation.from_euler("x", 4, degrees=True).as_matrix() @ world_from_camera[:3, :3]
+    world_from_camera[:3, :3] = (
+        Rotation.from_euler("x", 4, degrees=True).as_matrix() @ world_from_camera[:3, :3]
+    )
     world_from_camera[:3, 3] = [0.1, -3.0, 1.2]
     return invert(world_from_camera)
 

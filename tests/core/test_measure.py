@@ -29,7 +29,9 @@ def native_result(native_capture: Path) -> Measurement:
     return measure(native_capture)
 
 
-def test_merged_height_width_thickness_match_ground_truth(native_capture: Path, native_result: Measurement) -> None:
+def test_merged_height_width_thickness_match_ground_truth(
+    native_capture: Path, native_result: Measurement
+) -> None:
     truth = _truth(native_capture)
     merged = native_result.merged
     assert merged.height_m == pytest.approx(truth["height_m"], rel=0.02)

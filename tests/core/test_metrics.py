@@ -20,7 +20,9 @@ from canopy_core.metrics import (
 )
 
 
-def _ellipsoid_crown(rng: np.random.Generator, *, centre_z: float, radii: tuple[float, float, float], n: int) -> np.ndarray:
+def _ellipsoid_crown(
+    rng: np.random.Generator, *, centre_z: float, radii: tuple[float, float, float], n: int
+) -> np.ndarray:
     direction = rng.normal(size=(n, 3))
     direction /= np.linalg.norm(direction, axis=1, keepdims=True)
     scale = rng.uniform(0.7, 1.0, size=(n, 1)) ** (1 / 3)
@@ -95,5 +97,5 @@ def test_canopy_metrics_reports_paper_and_extra_metrics_consistently() -> None:
     assert metrics.thickness_m == pytest.approx(metrics.height_m - metrics.crown_base_m)
     assert metrics.diameter_along_row_m == pytest.approx(1.6, abs=0.03)
     assert metrics.diameter_across_row_m == pytest.approx(1.2, abs=0.03)
-    assert 0 < metrics.volume_voxel_m3 and 0 < metrics.volume_hull_m3 < 4 / 3 * np.pi * 0.8 * 0.6 * 1.0
+    assert metrics.volume_voxel_m3 > 0 and 0 < metrics.volume_hull_m3 < 4 / 3 * np.pi * 0.8 * 0.6 * 1.0
     assert metrics.points == tree.shape[0]

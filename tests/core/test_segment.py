@@ -14,7 +14,9 @@ def _blob(rng: np.random.Generator, centre: list[float], radius: float, n: int) 
 
 
 def _trunk(rng: np.random.Generator, top_m: float = 0.9) -> np.ndarray:
-    return np.column_stack([rng.normal(0, 0.02, 500), rng.normal(0, 0.02, 500), rng.uniform(0.12, top_m, 500)])
+    return np.column_stack(
+        [rng.normal(0, 0.02, 500), rng.normal(0, 0.02, 500), rng.uniform(0.12, top_m, 500)]
+    )
 
 
 def _tree(rng: np.random.Generator) -> np.ndarray:
