@@ -232,7 +232,7 @@ def measure(
         corrections, reports = refine_views(
             [v.name for v in capture.views],
             [points[points[:, 2] < config.icp.max_height_m] for points in roi_points],
-            anchors_m=apply(ground.world_from_reference, centres[0]),
+            view_anchors_m=[apply(pose, c) for pose, c in zip(world_from_view, centres, strict=True)],
             config=config.icp,
         )
         roi_points = [apply(c, p) for c, p in zip(corrections, roi_points, strict=True)]

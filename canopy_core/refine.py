@@ -1,12 +1,14 @@
-"""ICP refinement of the ball registration, gated so that it can only make things better.
+"""ICP refinement of the ball registration, anchored to the balls and gated so it can only help.
 
 Views from opposite sides of a row share little foliage; what they do share is the ground, the trunk's foot
-and the balls, so ICP runs on the region of interest with the ground in it. Pairwise point-to-plane ICP
-between every two views feeds an Open3D pose graph (multiway registration, the first view fixed); each
-view's refined pose is then accepted only if it brings the view closer to the others (median
-correspondence distance) and stays close to the ball registration, which is accurate on
-its own: a refinement may not move the balls by more than their registration leaves open. Otherwise the
-ball pose is kept and the reason reported.
+and the balls, so ICP runs on the low band of the region of interest. Plain ICP slides along the ground
+there (the plane holds it only in height and tilt), by centimetres, away from a ball registration that is
+good to millimetres. So each view is refined by a point-to-plane ICP whose cost also holds the view's
+ball centres to the reference's (Gauss-Newton on both, weighted by their noise): the ground and trunk
+correct tilt and height, the balls keep what the surfaces leave free. Views are refined one at a time
+against all the others (multiway for three or more). A refinement is accepted only if it brings the view
+closer to the others (median correspondence distance) and keeps within the bounds the ball registration
+leaves open; otherwise the ball pose stays and the reason is reported.
 """
 
 from __future__ import annotations
@@ -17,14 +19,19 @@ from typing import Any
 import numpy as np
 import open3d as o3d
 from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
 
 from canopy_core.config import IcpConfig
-from canopy_core.register import apply, invert, pose_change
+from canopy_core.register import apply, pose_change
 
-__all__ = ["AlignmentQuality", "IcpRefinement", "alignment_quality", "refine_views"]
+__all__ = ["AlignmentQuality", "IcpRefinement", "alignment_quality", "anchored_icp", "refine_views"]
 
 _NORMAL_NEIGHBOURS = 20
 _MIN_POINTS = 200
+_SURFACE_SIGMA_M = 0.005
+"""Depth noise of a Kinect v2 surface point at 3-4 m: the weight of a surface correspondence."""
+_ANCHOR_SIGMA_M = 0.003
+"""Accuracy of a fitted ball centre: the weight holding the balls together."""
 
 
 @dataclass(frozen=True)
@@ -74,51 +81,63 @@ def alignment_quality(points_m: np.ndarray, others: cKDTree, *, max_distance_m: 
     )
 
 
-def _thinned(points_m: np.ndarray, voxel_m: float) -> o3d.geometry.PointCloud:
+def _thinned(points_m: np.ndarray, voxel_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """Voxel-thinned points and their unit normals."""
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points_m)).voxel_down_sample(voxel_m)
     cloud.estimate_normals(
         o3d.geometry.KDTreeSearchParamHybrid(radius=4 * voxel_m, max_nn=_NORMAL_NEIGHBOURS)
     )
-    return cloud
+    return np.asarray(cloud.points), np.asarray(cloud.normals)
 
 
-def _pose_graph(clouds: list[o3d.geometry.PointCloud], config: IcpConfig) -> list[np.ndarray]:
-    """Multiway registration: pairwise ICP between all views, optimised jointly with view 0 fixed."""
-    registration = o3d.pipelines.registration
-    graph = registration.PoseGraph()
-    for _ in clouds:
-        graph.nodes.append(registration.PoseGraphNode(np.eye(4)))
-    criteria = registration.ICPConvergenceCriteria(max_iteration=config.max_iterations)
-    estimation = registration.TransformationEstimationPointToPlane()
-    for source in range(len(clouds)):
-        for target in range(source + 1, len(clouds)):
-            result = registration.registration_icp(
-                clouds[source], clouds[target], config.max_correspondence_m, np.eye(4), estimation, criteria
-            )
-            information = registration.get_information_matrix_from_point_clouds(
-                clouds[source], clouds[target], config.max_correspondence_m, result.transformation
-            )
-            graph.edges.append(
-                registration.PoseGraphEdge(
-                    source, target, result.transformation, information, uncertain=False
-                )
-            )
-    option = registration.GlobalOptimizationOption(
-        max_correspondence_distance=config.max_correspondence_m, edge_prune_threshold=0.25, reference_node=0
-    )
-    with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
-        registration.global_optimization(
-            graph,
-            registration.GlobalOptimizationLevenbergMarquardt(),
-            registration.GlobalOptimizationConvergenceCriteria(),
-            option,
-        )
-    reference = invert(np.asarray(graph.nodes[0].pose))
-    return [reference @ np.asarray(node.pose) for node in graph.nodes]
+def anchored_icp(
+    source_m: np.ndarray,
+    target_m: np.ndarray,
+    target_normals: np.ndarray,
+    source_anchors_m: np.ndarray,
+    target_anchors_m: np.ndarray,
+    *,
+    max_correspondence_m: float,
+    iterations: int,
+    surface_sigma_m: float = _SURFACE_SIGMA_M,
+    anchor_sigma_m: float = _ANCHOR_SIGMA_M,
+) -> np.ndarray:
+    """Point-to-plane ICP with anchor points held to their counterparts; returns the 4x4 correction.
+
+    Minimises sum (n_q . (C p - q))² / surface_sigma² + sum |C a - b|² / anchor_sigma² over rigid C by
+    Gauss-Newton with small-angle updates, re-matching each source point to its nearest target point
+    (within ``max_correspondence_m``) at every iteration.
+    """
+    target_tree = cKDTree(target_m)
+    correction = np.eye(4)
+    for _ in range(iterations):
+        moved = apply(correction, source_m)
+        distance, index = target_tree.query(moved, distance_upper_bound=max_correspondence_m)
+        matched = np.isfinite(distance)
+        p, q, n = moved[matched], target_m[index[matched]], target_normals[index[matched]]
+        anchors = apply(correction, source_anchors_m)
+        surface_rows = np.hstack([np.cross(p, n), n]) / surface_sigma_m
+        surface_residual = np.einsum("ij,ij->i", p - q, n) / surface_sigma_m
+        anchor_rows = np.concatenate([np.hstack([-_skew(a), np.eye(3)]) for a in anchors]) / anchor_sigma_m
+        anchor_residual = (anchors - target_anchors_m).ravel() / anchor_sigma_m
+        jacobian = np.vstack([surface_rows, anchor_rows])
+        residual = np.concatenate([surface_residual, anchor_residual])
+        step = np.linalg.solve(jacobian.T @ jacobian, -jacobian.T @ residual)
+        update = np.eye(4)
+        update[:3, :3] = Rotation.from_rotvec(step[:3]).as_matrix()
+        update[:3, 3] = step[3:]
+        correction = update @ correction
+        if np.linalg.norm(step[:3]) < 1e-6 and np.linalg.norm(step[3:]) < 1e-6:
+            break
+    return correction
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
 
 
 def refine_views(
-    view_names: list[str], points_m: list[np.ndarray], *, anchors_m: np.ndarray, config: IcpConfig
+    view_names: list[str], points_m: list[np.ndarray], *, view_anchors_m: list[np.ndarray], config: IcpConfig
 ) -> tuple[list[np.ndarray], list[IcpRefinement]]:
     """Refine the poses of views already brought into one frame by the balls.
 
@@ -128,9 +147,10 @@ def refine_views(
         The views, the first one the reference (never moved).
     points_m
         Each view's region-of-interest points in the common frame after the ball registration.
-    anchors_m
-        The ball centres in the common frame: a refinement may not move them farther than
-        ``config.max_ball_shift_m``, since the balls registered each view to within a few millimetres.
+    view_anchors_m
+        Each view's own ball centres mapped into the common frame by its ball pose (matching rows). ICP
+        holds them to the reference's, and a refinement may not move them farther than
+        ``config.max_ball_shift_m``: the balls registered each view to within a few millimetres.
     config
         ICP settings and the acceptance bounds.
 
@@ -143,21 +163,30 @@ def refine_views(
     corrections = [np.eye(4) for _ in points_m]
     if len(points_m) < 2 or min(p.shape[0] for p in points_m) < _MIN_POINTS:
         return corrections, []
-    clouds = [_thinned(points, config.voxel_m) for points in points_m]
-    thinned = [np.asarray(cloud.points) for cloud in clouds]
-    poses = _pose_graph(clouds, config)
+    thinned = [_thinned(points, config.voxel_m) for points in points_m]
     reports = []
     for index in range(1, len(points_m)):
-        others = np.concatenate(
-            [apply(corrections[j], thinned[j]) for j in range(len(thinned)) if j != index]
+        points, _ = thinned[index]
+        others = [j for j in range(len(thinned)) if j != index]
+        target = np.concatenate([apply(corrections[j], thinned[j][0]) for j in others])
+        target_normals = np.concatenate([thinned[j][1] @ corrections[j][:3, :3].T for j in others])
+        correction = anchored_icp(
+            points,
+            target,
+            target_normals,
+            view_anchors_m[index],
+            view_anchors_m[0],
+            max_correspondence_m=config.max_correspondence_m,
+            iterations=config.max_iterations,
         )
-        others_tree = cKDTree(others)
-        before = alignment_quality(thinned[index], others_tree, max_distance_m=config.max_correspondence_m)
+        others_tree = cKDTree(target)
+        before = alignment_quality(points, others_tree, max_distance_m=config.max_correspondence_m)
         after = alignment_quality(
-            apply(poses[index], thinned[index]), others_tree, max_distance_m=config.max_correspondence_m
+            apply(correction, points), others_tree, max_distance_m=config.max_correspondence_m
         )
-        translation, rotation = pose_change(np.eye(4), poses[index])
-        ball_shift = float(np.linalg.norm(apply(poses[index], anchors_m) - anchors_m, axis=1).max())
+        translation, rotation = pose_change(np.eye(4), correction)
+        anchors = view_anchors_m[index]
+        ball_shift = float(np.linalg.norm(apply(correction, anchors) - anchors, axis=1).max())
         if ball_shift > config.max_ball_shift_m or rotation > config.max_rotation_deg:
             accepted, reason = (
                 False,
@@ -173,7 +202,7 @@ def refine_views(
         else:
             accepted, reason = True, "improved the median correspondence distance"
         if accepted:
-            corrections[index] = poses[index]
+            corrections[index] = correction
         reports.append(
             IcpRefinement(
                 view=view_names[index],
