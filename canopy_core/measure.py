@@ -43,8 +43,9 @@ Progress = Callable[[str, float], None]
 STAGES = ("load", "filter", "balls", "register", "ground", "refine", "metrics", "done")
 
 MERGED = "merged"
-_MAX_BALL_RESIDUAL_M = 0.03
-"""Ball centres that disagree between views by more than this (RMS) mean a ball moved or was mistaken."""
+_MAX_BALL_DISTANCE_ERROR_M = 0.02
+"""Distances between ball centres that differ between views by more than this mean a ball moved or was
+mistaken: detection errors are a few millimetres."""
 _GROUND_SAMPLE = 60_000
 _TREE_CLEARANCE_M = 0.12
 """Tree points start this high above the ground: below it are the ground, grass and the balls."""
@@ -207,14 +208,8 @@ def measure(
     residuals = [
         _ball_residual(pose, c, centres[0]) for pose, c in zip(view_to_reference, centres, strict=True)
     ]
-    for view, residual in zip(capture.views, residuals, strict=True):
-        if residual > _MAX_BALL_RESIDUAL_M:
-            raise RegistrationFailed(
-                f"ball centres disagree with the first view's by {residual * 1000:.0f} mm RMS after "
-                "registration",
-                view=view.name,
-                hint="a ball was moved between views, or another object was taken for a ball",
-            )
+    for view, view_centres in zip(capture.views[1:], centres[1:], strict=True):
+        _check_ball_distances(view.name, view_centres, centres[0], colors)
 
     stages.start("ground")
     ground = _ground_frame(clouds, view_to_reference, centres[0], config)
@@ -297,6 +292,29 @@ def filtered_cloud(view: View, filters: FilterConfig) -> ViewCloud:
         jump_min_m=filters.flying_jump_min_m,
     )
     return backproject(view, keep=keep)
+
+
+def _check_ball_distances(view: str, centres: np.ndarray, reference: np.ndarray, colors: list[str]) -> None:
+    """The balls' mutual distances are the same from every side; a ball whose distances differ is wrong.
+
+    Raises RegistrationFailed naming the view and the colour of the ball in most of the disagreeing pairs
+    (a moved ball, or something else of its colour taken for it).
+    """
+    here = np.linalg.norm(centres[:, None] - centres[None, :], axis=2)
+    there = np.linalg.norm(reference[:, None] - reference[None, :], axis=2)
+    disagreement = np.abs(here - there)
+    if disagreement.max() <= _MAX_BALL_DISTANCE_ERROR_M:
+        return
+    worst = int(
+        np.argmax((disagreement > _MAX_BALL_DISTANCE_ERROR_M).sum(axis=1) + disagreement.sum(axis=1) / 10)
+    )
+    raise RegistrationFailed(
+        f"the {colors[worst]} ball's distances to the other balls differ from the first view's by up to "
+        f"{disagreement[worst].max() * 1000:.0f} mm",
+        view=view,
+        hint=f"the {colors[worst]} ball was moved between views, or something else of its colour was taken "
+        "for it; check with `canopy balls`",
+    )
 
 
 def _ball_residual(pose: np.ndarray, centres: np.ndarray, reference: np.ndarray) -> float:

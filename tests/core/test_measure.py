@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from canopy_core.errors import BallNotFound
+from canopy_core.errors import BallNotFound, RegistrationFailed
 from canopy_core.measure import STAGES, Measurement, measure
 from canopy_core.simulate import simulate_capture
 
@@ -102,3 +102,21 @@ def test_ball_painted_over_fails_naming_view_and_colour(native_capture: Path, tm
     with pytest.raises(BallNotFound) as info:
         measure(broken)
     assert info.value.view == "views/2" and info.value.color == "blue"
+
+
+def test_one_view_capture_is_measured_in_its_own_ground_frame(tmp_path: Path) -> None:
+    capture = simulate_capture(tmp_path / "tree", seed=21, n_views=1)
+    result = measure(capture)
+    assert list(result.modes) == ["views/1", "merged"]
+    assert result.merged.height_m == pytest.approx(_truth(capture)["height_m"], rel=0.03)
+
+
+def test_a_ball_moved_between_views_fails_registration_naming_it() -> None:
+    from canopy_core.measure import _check_ball_distances
+
+    reference = np.array([[0.5, 0.1, 3.0], [-0.3, 0.45, 3.2], [-0.25, -0.5, 2.9]])
+    moved = reference.copy()
+    moved[2] += [0.06, 0.0, 0.0]
+    with pytest.raises(RegistrationFailed) as info:
+        _check_ball_distances("views/2", moved, reference, ["red", "yellow", "blue"])
+    assert info.value.view == "views/2" and "blue ball" in info.value.message
