@@ -41,6 +41,7 @@ case "${1:-}" in
         setup
         # The main job on the embedded default: simulate one two-view capture, then measure it.
         out=${CANOPY_DATA_DIR:-./canopy-data}/demo
+        rm -rf "$out"
         "$VENV/bin/canopy" simulate "$out" --seed 7 --count 1 >/dev/null
         "$VENV/bin/canopy" measure "$out/tree_000" --cloud "$out/tree_000.ply"
         echo "ground truth: $(cat "$out/tree_000/ground_truth.json" | "$VENV/bin/python" -c \

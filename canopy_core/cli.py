@@ -111,7 +111,12 @@ def simulate(
     """Write synthetic captures of procedural apple trees, each with its ground_truth.json."""
     from canopy_core.simulate import simulate_captures
 
-    for path in simulate_captures(out, seed=seed, count=count, n_views=views):
+    try:
+        paths = simulate_captures(out, seed=seed, count=count, n_views=views)
+    except FileExistsError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from exc
+    for path in paths:
         typer.echo(str(path))
 
 
