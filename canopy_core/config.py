@@ -111,7 +111,7 @@ class FilterConfig(_Section):
     sparse_radius_px: float = Field(
         4.0, gt=0.0, description="Neighbourhood of the sparse-point check, in pixels at the point's range."
     )
-    sparse_min_neighbors: int = Field(3, ge=1, description="Fewest neighbours a kept point has in it.")
+    sparse_min_neighbors: int = Field(2, ge=1, description="Fewest neighbours a kept point has in it.")
 
 
 class GroundConfig(_Section):
@@ -148,10 +148,15 @@ class IcpConfig(_Section):
 class MetricsConfig(_Section):
     """Canopy metrics (``metrics.py``)."""
 
-    top_support_radius_m: float = Field(
-        0.05, gt=0.0, description="The top counts only where this many points surround it (stray points)."
+    support_radius_m: float = Field(
+        0.05, gt=0.0, description="Neighbourhood in which the top and the crown base need supporting points."
     )
-    top_support_points: int = Field(4, ge=1)
+    top_support_points: int = Field(
+        2, ge=1, description="The top counts only with this many other points within support_radius_m."
+    )
+    base_support_points: int = Field(
+        4, ge=1, description="The crown base counts only with this many other points within support_radius_m."
+    )
     kde_bandwidth_m: float = Field(0.04, gt=0.0, description="Gaussian kernel bandwidth h of eq. 7, metres.")
     kde_threshold: float = Field(
         0.6,

@@ -66,7 +66,7 @@ def sparse_point_mask(
     range_m: np.ndarray,
     focal_px: float,
     radius_px: float = 4.0,
-    min_neighbors: int = 3,
+    min_neighbors: int = 2,
 ) -> np.ndarray:
     """Mask of points that have at least ``min_neighbors`` others within a few pixels' footprint.
 

@@ -194,7 +194,7 @@ def canopy_metrics(
     clear trunk); ``thickness_kde_m`` and ``crown_base_kde_m`` follow the paper's eqs. 7-8.
     """
     height = canopy_height(
-        points_m, support_radius_m=config.top_support_radius_m, support_points=config.top_support_points
+        points_m, support_radius_m=config.support_radius_m, support_points=config.top_support_points
     )
     base_kde = crown_base_kde(
         points_m[:, 2], height_m=height, bandwidth_m=config.kde_bandwidth_m, threshold=config.kde_threshold
@@ -204,8 +204,8 @@ def canopy_metrics(
         trunk_xy_m,
         foliage=foliage,
         min_radius_m=config.crown_base_min_radius_m,
-        support_radius_m=config.top_support_radius_m,
-        support_points=config.top_support_points,
+        support_radius_m=config.support_radius_m,
+        support_points=config.base_support_points,
     )
     crown = points_m[points_m[:, 2] >= base_geometric]
     along, across = crown_diameters(crown)
