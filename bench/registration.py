@@ -39,11 +39,12 @@ def _errors(args: tuple[Path, int, int]) -> list[dict]:
     true_first = np.asarray(truth[first]["camera_to_world"])
     for index in range(1, len(refined.views)):
         name = refined.views[index].view
+        icp = refined.views[index].icp
         true_relative = invert(true_first) @ np.asarray(truth[name]["camera_to_world"])
         row = {
             "seed": seed,
             "view": name,
-            "accepted": bool(refined.views[index].icp and refined.views[index].icp.accepted),
+            "accepted": icp is not None and icp.accepted,
         }
         for label, result in (("balls", balls_only), ("icp", refined)):
             relative = invert(result.views[0].world_from_view) @ result.views[index].world_from_view
