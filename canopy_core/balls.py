@@ -310,7 +310,7 @@ def _coverage(scene_m: np.ndarray, sphere: np.ndarray, tolerance_m: float) -> fl
         np.einsum("ij,ij->i", offsets, seen) < 0.0
     )
     not_in_front = distance >= front - tolerance_m
-    return int(np.count_nonzero(on_sphere)) / max(int(np.count_nonzero(not_in_front)), 1)
+    return int(np.count_nonzero(on_sphere & not_in_front)) / max(int(np.count_nonzero(not_in_front)), 1)
 
 
 def _least_squares_sphere(

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from canopy_core.config import DEFAULT_HSV_RANGES, HsvRange
+from canopy_core.config import BallSet, RoiConfig
 from canopy_core.errors import CaptureError
 from canopy_core.images import DEFAULT_MAX_PIXELS, decode_color, decode_depth
 
@@ -42,29 +42,6 @@ class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
 
-class _BallsSection(_Strict):
-    diameter_m: float = Field(0.10, gt=0.0, le=2.0, allow_inf_nan=False)
-    colors: list[str] = Field(default_factory=lambda: ["red", "yellow", "blue"], min_length=1)
-    hsv: dict[str, HsvRange] = Field(default_factory=dict)
-
-    @model_validator(mode="after")
-    def _colors_have_ranges(self) -> _BallsSection:
-        if len(set(self.colors)) != len(self.colors):
-            raise ValueError("calibration_balls.colors lists a colour twice")
-        for color in self.colors:
-            if color not in self.hsv and color not in DEFAULT_HSV_RANGES:
-                raise ValueError(
-                    f"colour {color!r} has no default HSV range; give one in calibration_balls.hsv "
-                    f"(known: {', '.join(DEFAULT_HSV_RANGES)})"
-                )
-        return self
-
-
-class _RoiSection(_Strict):
-    radius_m: float = Field(gt=0.0, le=20.0, allow_inf_nan=False)
-    max_height_m: float = Field(5.0, gt=0.0, le=50.0, allow_inf_nan=False)
-
-
 class CaptureManifest(_Strict):
     """The content of ``capture.json``."""
 
@@ -76,9 +53,9 @@ class CaptureManifest(_Strict):
     tree: str = Field(min_length=1, max_length=200)
     captured_at: str = Field(min_length=1, max_length=64)
     sensor: str = "unknown"
-    calibration_balls: _BallsSection = Field(default_factory=_BallsSection)
+    calibration_balls: BallSet = Field(default_factory=BallSet)
     views: list[str] = Field(min_length=1, max_length=64)
-    roi: _RoiSection | None = None
+    roi: RoiConfig | None = None
 
     @field_validator("format")
     @classmethod
@@ -93,7 +70,8 @@ class CaptureManifest(_Strict):
         for view in views:
             path = PurePosixPath(view)
             if (
-                path.is_absolute()
+                str(path) != view
+                or path.is_absolute()
                 or "\\" in view
                 or len(path.parts) != 2
                 or path.parts[0] != "views"
@@ -115,6 +93,9 @@ class _IntrinsicsModel(_Strict):
 
 
 class _CameraModel(_Strict):
+    # Capture software may record more (serial number, distortion): kept out of the way, not refused.
+    model_config = ConfigDict(extra="ignore", frozen=True)
+
     depth_intrinsics: _IntrinsicsModel
     depth_scale: float = Field(1000.0, gt=0.0, allow_inf_nan=False)
     color_intrinsics: _IntrinsicsModel | None = None

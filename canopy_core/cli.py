@@ -52,9 +52,14 @@ def measure(
     from canopy_core.cloud_io import write_ply
     from canopy_core.measure import measure as run_measure
 
+    if cloud is not None and not cloud.parent.resolve().is_dir():
+        raise CanopyError(f"cannot write the cloud: folder {cloud.parent} does not exist", field="--cloud")
     result = run_measure(capture)
     if cloud is not None:
-        write_ply(cloud, result.cloud_points_m, result.cloud_colors_rgb)
+        try:
+            write_ply(cloud, result.cloud_points_m, result.cloud_colors_rgb)
+        except OSError as exc:
+            raise CanopyError(f"cannot write the cloud to {cloud}: {exc}", field="--cloud") from exc
     if as_json:
         _print_json(result.to_dict())
         return
@@ -127,3 +132,7 @@ def main() -> None:
     except CanopyError as exc:
         typer.echo(f"error: {exc}", err=True)
         sys.exit(2)
+
+
+if __name__ == "__main__":
+    main()

@@ -9,11 +9,12 @@ from __future__ import annotations
 
 from typing import Annotated, Any
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, model_validator
 
 __all__ = [
     "DEFAULT_HSV_RANGES",
     "BallConfig",
+    "BallSet",
     "FilterConfig",
     "GroundConfig",
     "HsvRange",
@@ -23,8 +24,16 @@ __all__ = [
     "RoiConfig",
 ]
 
+
+def _hue_on_opencv_scale(bounds: list[list[int]]) -> list[list[int]]:
+    for bound in bounds:
+        if bound[0] > 180:
+            raise ValueError(f"hue {bound[0]} is off OpenCV's 0-180 scale")
+    return bounds
+
+
 HsvTriple = Annotated[list[Annotated[int, Field(ge=0, le=255)]], Field(min_length=3, max_length=3)]
-HsvRange = Annotated[list[HsvTriple], Field(min_length=2, max_length=2)]
+HsvRange = Annotated[list[HsvTriple], Field(min_length=2, max_length=2), AfterValidator(_hue_on_opencv_scale)]
 """``[[h, s, v], [h, s, v]]``, lower and upper bound on OpenCV's HSV scale (H 0-180, S and V 0-255).
 A lower hue above the upper hue wraps round through 0, as red needs."""
 
@@ -42,14 +51,31 @@ class _Section(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
 
-class BallConfig(_Section):
-    """The calibration balls and how they are found (``balls.py``)."""
+class BallSet(_Section):
+    """The calibration balls a capture used: their size and colours (capture.json's calibration_balls)."""
 
-    diameter_m: float = Field(0.10, gt=0.0, le=2.0, description="True ball diameter, metres.")
+    diameter_m: float = Field(0.10, gt=0.0, le=2.0, allow_inf_nan=False, description="Ball diameter, m.")
     colors: list[str] = Field(default_factory=lambda: ["red", "yellow", "blue"], min_length=1)
     hsv: dict[str, HsvRange] = Field(
         default_factory=dict, description="Per-colour HSV ranges overriding DEFAULT_HSV_RANGES."
     )
+
+    @model_validator(mode="after")
+    def _colors_known_and_distinct(self) -> BallSet:
+        if len(set(self.colors)) != len(self.colors):
+            raise ValueError("colors lists a colour twice")
+        for color in self.colors:
+            if color not in self.hsv and color not in DEFAULT_HSV_RANGES:
+                raise ValueError(
+                    f"colour {color!r} has no default HSV range; give one in hsv "
+                    f"(known: {', '.join(DEFAULT_HSV_RANGES)})"
+                )
+        return self
+
+
+class BallConfig(BallSet):
+    """The calibration balls and how they are found (``balls.py``)."""
+
     min_points: int = Field(12, ge=4, description="Fewest ball-coloured surface points a ball may have.")
     inlier_tolerance_m: float = Field(
         0.008,
@@ -63,13 +89,6 @@ class BallConfig(_Section):
         0.012, gt=0.0, description="Largest RMS distance of inliers to the fitted sphere."
     )
     ransac_iterations: int = Field(300, ge=10)
-
-    @field_validator("colors")
-    @classmethod
-    def _colors_unique(cls, colors: list[str]) -> list[str]:
-        if len(set(colors)) != len(colors):
-            raise ValueError("colours must be distinct")
-        return colors
 
     @property
     def radius_m(self) -> float:
@@ -112,6 +131,12 @@ class FilterConfig(_Section):
         4.0, gt=0.0, description="Neighbourhood of the sparse-point check, in pixels at the point's range."
     )
     sparse_min_neighbors: int = Field(2, ge=1, description="Fewest neighbours a kept point has in it.")
+
+    @model_validator(mode="after")
+    def _range_not_empty(self) -> FilterConfig:
+        if self.min_depth_m >= self.max_depth_m:
+            raise ValueError(f"min_depth_m {self.min_depth_m} must be below max_depth_m {self.max_depth_m}")
+        return self
 
 
 class GroundConfig(_Section):
@@ -169,7 +194,7 @@ class MetricsConfig(_Section):
         0.25, gt=0.0, description="Crown base: points this far from the trunk's axis count as crown."
     )
     foliage_min_exgr: float = Field(
-        0.15, description="Points whose ExGR vegetation index exceeds this are foliage (crown base)."
+        0.15, ge=0.0, description="Points whose ExGR vegetation index exceeds this are foliage (crown base)."
     )
 
 

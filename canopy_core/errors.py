@@ -10,6 +10,7 @@ __all__ = [
     "BallNotFound",
     "CanopyError",
     "CaptureError",
+    "ConfigError",
     "MeasurementError",
     "RegistrationFailed",
 ]
@@ -83,6 +84,12 @@ class CaptureError(CanopyError):
     """The capture folder or one of its files is missing, unreadable or inconsistent."""
 
     code = "invalid_capture"
+
+
+class ConfigError(CanopyError):
+    """Measurement settings given by the caller are invalid (names the setting)."""
+
+    code = "invalid_config"
 
 
 class MeasurementError(CanopyError):

@@ -1,4 +1,4 @@
-"""Cleaning of depth images and point clouds: depth range, flying pixels, statistical outliers.
+"""Cleaning of depth images and point clouds: depth range, flying pixels, stray points.
 
 Time-of-flight cameras such as Kinect v2 mix the foreground and background depth at every silhouette edge
 ("flying pixels"); a leafy crown is mostly edges, and those pixels strung out behind it are what makes the

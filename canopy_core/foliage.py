@@ -2,9 +2,10 @@
 
 ExGR = ExG - ExR with ExG = 2g - r - b and ExR = 1.4r - g on chromaticity coordinates (r = R / (R + G + B),
 ...) is positive for green leaves and negative for bark, soil, posts and sky, whatever the brightness, so
-it holds in sun and shade, and its threshold is zero (Meyer & Neto 2008, Computers and Electronics in
-Agriculture 63(2):282-293). Plain ExG alone takes dark olive bark for foliage. Points without colour (not
-seen by the colour camera) are not foliage.
+it holds in sun and shade (Meyer & Neto 2008, Computers and Electronics in Agriculture 63(2):282-293,
+whose threshold is zero; the pipeline uses 0.15 because greenish, lichen-covered bark reaches 0.1).
+Plain ExG alone takes dark olive bark for foliage. Points without colour (not seen by the colour camera,
+black here) have index 0 and are foliage only with a negative threshold, which the configuration refuses.
 """
 
 from __future__ import annotations

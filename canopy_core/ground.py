@@ -76,7 +76,9 @@ def _ransac_ground(points: np.ndarray, tolerance_m: float) -> np.ndarray:
     """Indices (into ``points``) of the dominant plane's inliers."""
     rng = np.random.default_rng(0)
     sample = (
-        points if points.shape[0] <= _RANSAC_SAMPLE else points[rng.choice(points.shape[0], _RANSAC_SAMPLE)]
+        points
+        if points.shape[0] <= _RANSAC_SAMPLE
+        else points[rng.choice(points.shape[0], _RANSAC_SAMPLE, replace=False)]
     )
     o3d.utility.random.seed(0)
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(sample))
@@ -135,7 +137,7 @@ def fit_ground_frame(
                 contact = centroid - ((centroid - plane_point) @ up) * up
     rotation = _world_rotation(up, forward_hint)
     ground_world = (points_m[ground] - contact) @ rotation.T
-    trunk_xy, trunk_points = _trunk_position(points_m, contact, rotation, ball_centres_m)
+    trunk_xy, trunk_points = _trunk_position(points_m, contact, rotation)
     ground_height = _local_ground_height(ground_world, trunk_xy, config.trunk_radius_m)
     world_from_reference = np.eye(4)
     world_from_reference[:3, :3] = rotation
@@ -161,7 +163,7 @@ def _world_rotation(up: np.ndarray, forward_hint: np.ndarray) -> np.ndarray:
 
 
 def _trunk_position(
-    points_m: np.ndarray, contact: np.ndarray, rotation: np.ndarray, ball_centres_m: np.ndarray
+    points_m: np.ndarray, contact: np.ndarray, rotation: np.ndarray
 ) -> tuple[np.ndarray, int]:
     """Horizontal position of the trunk: median of the points in a low slice near the balls' centroid."""
     world = (points_m - contact) @ rotation.T

@@ -102,8 +102,8 @@ def decode_color(
     """Decode a colour PNG or JPEG into a ``(height, width, 3)`` uint8 RGB array.
 
     ``expected_size`` is ``(width, height)`` from camera.json (colour intrinsics, or the depth size when the
-    colour is registered to the depth image). Alpha is dropped; palette images are expanded; grey or 16-bit
-    images are refused because ball detection needs 8-bit colour.
+    colour is registered to the depth image). Alpha is dropped; palette images are expanded; 48-bit RGB
+    PNGs are reduced to 8 bits by Pillow; grey images are refused because ball detection needs colour.
     """
     image = _open(data, file=file, view=view, max_pixels=max_pixels)
     if image.mode not in _COLOR_MODES:

@@ -15,12 +15,13 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from pydantic import ValidationError
 
 from canopy_core.backproject import ViewCloud, backproject
 from canopy_core.balls import SphereFit, detect_balls
 from canopy_core.capture import Capture, CaptureManifest, View, load_capture
 from canopy_core.config import FilterConfig, MeasureConfig
-from canopy_core.errors import MeasurementError, RegistrationFailed
+from canopy_core.errors import CaptureError, ConfigError, MeasurementError, RegistrationFailed
 from canopy_core.filters import reliable_depth_mask, sparse_point_mask
 from canopy_core.foliage import foliage_mask
 from canopy_core.ground import (
@@ -53,11 +54,15 @@ _TREE_CLEARANCE_M = 0.12
 
 @dataclass(frozen=True)
 class ViewDiagnostics:
-    """What happened to one view: points kept, balls found, how it registered."""
+    """What happened to one view: points kept, balls found, how it registered.
+
+    ``unreliable_pixels_removed`` counts depth readings out of range or flying; ``sparse_points_removed``
+    the points inside the region of interest dropped as strays.
+    """
 
     view: str
     depth_pixels: int
-    flying_pixels_removed: int
+    unreliable_pixels_removed: int
     roi_points: int
     sparse_points_removed: int
     tree_points: int
@@ -70,7 +75,7 @@ class ViewDiagnostics:
         """JSON-ready dict."""
         return {
             "depth_pixels": self.depth_pixels,
-            "flying_pixels_removed": self.flying_pixels_removed,
+            "unreliable_pixels_removed": self.unreliable_pixels_removed,
             "roi_points": self.roi_points,
             "sparse_points_removed": self.sparse_points_removed,
             "tree_points": self.tree_points,
@@ -132,7 +137,16 @@ def config_for(manifest: CaptureManifest, overrides: dict[str, Any] | None = Non
     if manifest.roi is not None:
         from_capture["roi"] = manifest.roi.model_dump()
     config = MeasureConfig().merged(from_capture)
-    return config.merged(overrides) if overrides else config
+    if not overrides:
+        return config
+    try:
+        return config.merged(overrides)
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        field = ".".join(str(part) for part in first["loc"])
+        raise ConfigError(
+            f"{field}: {first['msg'].removeprefix('Value error, ')}", field=field or None
+        ) from exc
 
 
 class _Stages:
@@ -187,29 +201,30 @@ def measure(
         capture = load_capture(capture)
     config = config_for(capture.manifest, overrides)
 
-    stages.start("filter")
-    clouds = [filtered_cloud(view, config.filters) for view in capture.views]
-    removed = [
-        int(np.count_nonzero(v.depth_raw)) - len(c) for v, c in zip(capture.views, clouds, strict=True)
-    ]
-
-    stages.start("balls")
-    balls = [detect_balls(cloud, config.balls) for cloud in clouds]
-
-    stages.start("register")
     colors = config.balls.colors
     if len(colors) < 3:
         raise RegistrationFailed(
             f"{len(colors)} ball colour(s) configured; registration and the ground frame need three",
             field="calibration_balls.colors",
         )
+
+    stages.start("filter")
+    depth_pixels = [int(np.count_nonzero(view.depth_raw)) for view in capture.views]
+    clouds = [filtered_cloud(view, config.filters) for view in capture.views]
+
+    stages.start("balls")
+    balls = [detect_balls(cloud, config.balls) for cloud in clouds]
+
+    stages.start("register")
     centres = [np.array([found[color].center_m for color in colors]) for found in balls]
+    for view, view_centres in zip(capture.views, centres, strict=True):
+        _check_ball_spacing(view.name, view_centres, colors, config.balls.diameter_m)
+    for view, view_centres in zip(capture.views[1:], centres[1:], strict=True):
+        _check_ball_distances(view.name, view_centres, centres[0], colors)
     view_to_reference = [register_by_balls(c, centres[0]) for c in centres]
     residuals = [
         _ball_residual(pose, c, centres[0]) for pose, c in zip(view_to_reference, centres, strict=True)
     ]
-    for view, view_centres in zip(capture.views[1:], centres[1:], strict=True):
-        _check_ball_distances(view.name, view_centres, centres[0], colors)
 
     stages.start("ground")
     ground = _ground_frame(clouds, view_to_reference, centres[0], config)
@@ -232,7 +247,8 @@ def measure(
         )
         roi_points = [apply(c, p) for c, p in zip(corrections, roi_points, strict=True)]
         world_from_view = [c @ pose for c, pose in zip(corrections, world_from_view, strict=True)]
-        icp_reports = [None, *reports]
+        by_view = {report.view: report for report in reports}
+        icp_reports = [by_view.get(view.name) for view in capture.views]
 
     stages.start("metrics")
     balls_world = apply(ground.world_from_reference, centres[0])
@@ -256,8 +272,8 @@ def measure(
     diagnostics = tuple(
         ViewDiagnostics(
             view=view.name,
-            depth_pixels=int(np.count_nonzero(view.depth_raw)),
-            flying_pixels_removed=removed[i],
+            depth_pixels=depth_pixels[i],
+            unreliable_pixels_removed=depth_pixels[i] - len(clouds[i]),
             roi_points=int(roi_points[i].shape[0]),
             sparse_points_removed=outliers[i],
             tree_points=int(np.count_nonzero(tree_masks[i])),
@@ -291,7 +307,34 @@ def filtered_cloud(view: View, filters: FilterConfig) -> ViewCloud:
         jump_ratio=filters.flying_jump_ratio,
         jump_min_m=filters.flying_jump_min_m,
     )
+    if not keep.any():
+        raise CaptureError(
+            f"no depth reading between {filters.min_depth_m} and {filters.max_depth_m} m",
+            view=view.name,
+            file=f"{view.name}/depth.png",
+            hint="check camera.json's depth_scale (depth units per metre)",
+        )
     return backproject(view, keep=keep)
+
+
+def _check_ball_spacing(view: str, centres: np.ndarray, colors: list[str], diameter_m: float) -> None:
+    """Balls found closer than one diameter apart are one ball taken twice (overlapping colour ranges)."""
+    for first in range(len(colors)):
+        for second in range(first + 1, len(colors)):
+            if np.linalg.norm(centres[first] - centres[second]) < diameter_m:
+                raise RegistrationFailed(
+                    f"the {colors[first]} and {colors[second]} balls were found at the same place",
+                    view=view,
+                    field="calibration_balls.hsv",
+                    hint="their colour ranges overlap, or the balls touch; separate them",
+                )
+    spread = np.linalg.svd(centres - centres.mean(axis=0), compute_uv=False)
+    if spread[1] < 0.2 * diameter_m:
+        raise RegistrationFailed(
+            "the balls stand in a line, so they do not fix the view's orientation",
+            view=view,
+            hint="lay the balls in a triangle around the trunk",
+        )
 
 
 def _check_ball_distances(view: str, centres: np.ndarray, reference: np.ndarray, colors: list[str]) -> None:

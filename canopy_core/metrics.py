@@ -86,9 +86,9 @@ def max_horizontal_distance(points_m: np.ndarray) -> float:
     if xy.shape[0] < 3:
         return float(np.linalg.norm(xy[0] - xy[-1])) if xy.shape[0] else 0.0
     try:
-        vertices = xy[ConvexHull(xy).vertices]
-    except QhullError:
-        vertices = xy
+        vertices = xy[ConvexHull(xy, qhull_options="QJ").vertices]
+    except (QhullError, ValueError):  # all points (nearly) equal
+        return float(np.ptp(xy, axis=0).max())
     differences = vertices[:, None, :] - vertices[None, :, :]
     return float(np.sqrt((differences**2).sum(axis=2).max()))
 
@@ -112,7 +112,7 @@ def height_density(
     half = int(np.ceil(4 * bandwidth_m / step))
     offsets = np.arange(-half, half + 1) * step
     kernel = np.exp(-0.5 * (offsets / bandwidth_m) ** 2) / (np.sqrt(2 * np.pi) * bandwidth_m)
-    density = np.convolve(counts, kernel, mode="same") / z_m.size
+    density = np.convolve(counts, kernel, mode="full")[half : half + counts.size] / z_m.size
     return (edges[:-1] + edges[1:]) / 2.0, density
 
 

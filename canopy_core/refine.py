@@ -30,6 +30,8 @@ _NORMAL_NEIGHBOURS = 20
 _MIN_POINTS = 200
 _SURFACE_SIGMA_M = 0.005
 """Depth noise of a Kinect v2 surface point at 3-4 m: the weight of a surface correspondence."""
+_SURFACE_EFFECTIVE_POINTS = 300
+"""How many independent measurements all surface correspondences together are worth."""
 _ANCHOR_SIGMA_M = 0.003
 """Accuracy of a fitted ball centre: the weight holding the balls together."""
 
@@ -40,13 +42,14 @@ class AlignmentQuality:
 
     ``fitness`` is the fraction of the view's points with a neighbour in the other views within the
     correspondence distance (Open3D's fitness, which counts *source* points); the percentiles are of those
-    neighbour distances, which reveal a bad alignment that a single fitness number hides.
+    neighbour distances, which reveal a bad alignment that a single fitness number hides. The distances
+    are None when no point has a neighbour within the correspondence distance.
     """
 
     fitness: float
-    inlier_rmse_m: float
-    distance_p50_m: float
-    distance_p90_m: float
+    inlier_rmse_m: float | None
+    distance_p50_m: float | None
+    distance_p90_m: float | None
 
 
 @dataclass(frozen=True)
@@ -72,12 +75,21 @@ def alignment_quality(points_m: np.ndarray, others: cKDTree, *, max_distance_m: 
     distance, _ = others.query(points_m, distance_upper_bound=max_distance_m)
     matched = distance[np.isfinite(distance)]
     if matched.size == 0:
-        return AlignmentQuality(0.0, float("nan"), float("nan"), float("nan"))
+        return AlignmentQuality(0.0, None, None, None)
     return AlignmentQuality(
         fitness=float(matched.size / points_m.shape[0]),
         inlier_rmse_m=float(np.sqrt(np.mean(matched**2))),
         distance_p50_m=float(np.percentile(matched, 50)),
         distance_p90_m=float(np.percentile(matched, 90)),
+    )
+
+
+def _closer(after: AlignmentQuality, before: AlignmentQuality) -> bool:
+    """True when the median correspondence distance fell (and there were correspondences to compare)."""
+    return (
+        after.distance_p50_m is not None
+        and before.distance_p50_m is not None
+        and after.distance_p50_m < before.distance_p50_m
     )
 
 
@@ -92,7 +104,7 @@ def _thinned(points_m: np.ndarray, voxel_m: float) -> tuple[np.ndarray, np.ndarr
 
 def anchored_icp(
     source_m: np.ndarray,
-    target_m: np.ndarray,
+    target: cKDTree,
     target_normals: np.ndarray,
     source_anchors_m: np.ndarray,
     target_anchors_m: np.ndarray,
@@ -104,20 +116,25 @@ def anchored_icp(
 ) -> np.ndarray:
     """Point-to-plane ICP with anchor points held to their counterparts; returns the 4x4 correction.
 
-    Minimises sum (n_q . (C p - q))² / surface_sigma² + sum |C a - b|² / anchor_sigma² over rigid C by
+    ``target`` indexes the target points (its ``data``), ``target_normals`` their unit normals.
+
+    Minimises w sum (n_q . (C p - q))² / surface_sigma² + sum |C a - b|² / anchor_sigma² over rigid C by
     Gauss-Newton with small-angle updates, re-matching each source point to its nearest target point
-    (within ``max_correspondence_m``) at every iteration.
+    (within ``max_correspondence_m``) at every iteration. ``w`` scales the surface term to at most the
+    weight of ``_SURFACE_EFFECTIVE_POINTS`` independent points, so the balls still count.
     """
-    target_tree = cKDTree(target_m)
     correction = np.eye(4)
     for _ in range(iterations):
         moved = apply(correction, source_m)
-        distance, index = target_tree.query(moved, distance_upper_bound=max_correspondence_m)
+        distance, index = target.query(moved, distance_upper_bound=max_correspondence_m)
         matched = np.isfinite(distance)
-        p, q, n = moved[matched], target_m[index[matched]], target_normals[index[matched]]
+        p, q, n = moved[matched], target.data[index[matched]], target_normals[index[matched]]
         anchors = apply(correction, source_anchors_m)
-        surface_rows = np.hstack([np.cross(p, n), n]) / surface_sigma_m
-        surface_residual = np.einsum("ij,ij->i", p - q, n) / surface_sigma_m
+        # Correspondences between two views' samplings of one surface are not independent (shared bumps,
+        # the sensor's bias at the same grazing angle): together they weigh as _SURFACE_EFFECTIVE_POINTS.
+        surface_weight = np.sqrt(min(1.0, _SURFACE_EFFECTIVE_POINTS / max(p.shape[0], 1))) / surface_sigma_m
+        surface_rows = np.hstack([np.cross(p, n), n]) * surface_weight
+        surface_residual = np.einsum("ij,ij->i", p - q, n) * surface_weight
         anchor_rows = np.concatenate([np.hstack([-_skew(a), np.eye(3)]) for a in anchors]) / anchor_sigma_m
         anchor_residual = (anchors - target_anchors_m).ravel() / anchor_sigma_m
         jacobian = np.vstack([surface_rows, anchor_rows])
@@ -168,18 +185,17 @@ def refine_views(
     for index in range(1, len(points_m)):
         points, _ = thinned[index]
         others = [j for j in range(len(thinned)) if j != index]
-        target = np.concatenate([apply(corrections[j], thinned[j][0]) for j in others])
+        others_tree = cKDTree(np.concatenate([apply(corrections[j], thinned[j][0]) for j in others]))
         target_normals = np.concatenate([thinned[j][1] @ corrections[j][:3, :3].T for j in others])
         correction = anchored_icp(
             points,
-            target,
+            others_tree,
             target_normals,
             view_anchors_m[index],
             view_anchors_m[0],
             max_correspondence_m=config.max_correspondence_m,
             iterations=config.max_iterations,
         )
-        others_tree = cKDTree(target)
         before = alignment_quality(points, others_tree, max_distance_m=config.max_correspondence_m)
         after = alignment_quality(
             apply(correction, points), others_tree, max_distance_m=config.max_correspondence_m
@@ -197,7 +213,7 @@ def refine_views(
                     "the ball registration leaves open"
                 ),
             )
-        elif not after.distance_p50_m < before.distance_p50_m:
+        elif not _closer(after, before):
             accepted, reason = False, "did not bring the view closer to the others (median distance)"
         else:
             accepted, reason = True, "improved the median correspondence distance"

@@ -182,3 +182,23 @@ def test_colour_without_default_range_needs_an_hsv_override(capture_dir: Path) -
 def test_oversized_image_is_refused_from_its_header(capture_dir: Path) -> None:
     with pytest.raises(CaptureError, match="exceeds the limit"):
         load_capture(capture_dir, max_pixels=1000)
+
+
+@pytest.mark.parametrize("spelling", ["views/1/", "views//1", "views/./1"])
+def test_view_path_must_be_spelled_canonically(capture_dir: Path, spelling: str) -> None:
+    _edit_json(capture_dir / "capture.json", lambda d: d.update(views=["views/1", spelling]))
+    assert _error(capture_dir).field == "views"
+
+
+def test_hue_beyond_opencv_scale_is_refused(capture_dir: Path) -> None:
+    _edit_json(
+        capture_dir / "capture.json",
+        lambda d: d["calibration_balls"].update(hsv={"red": [[250, 0, 0], [255, 255, 255]]}),
+    )
+    error = _error(capture_dir)
+    assert "0-180" in error.message and error.field.startswith("calibration_balls.hsv")
+
+
+def test_extra_fields_in_camera_json_are_tolerated(capture_dir: Path) -> None:
+    _edit_json(capture_dir / "views/1/camera.json", lambda d: d.update(serial="003154", distortion=[0, 0]))
+    assert load_capture(capture_dir).views[0].camera.depth.fx == 50.0

@@ -69,3 +69,9 @@ def test_invalid_capture_exits_2_with_one_line_naming_the_file(capture: Path, tm
     assert done.returncode == 2 and done.stdout == ""
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1 and "views/2/depth.png" in lines[0]
+
+
+def test_cloud_into_a_missing_folder_fails_before_measuring(capture: Path, tmp_path: Path) -> None:
+    done = _run("measure", str(capture), "--cloud", str(tmp_path / "no" / "such" / "tree.ply"))
+    assert done.returncode == 2 and "does not exist" in done.stderr
+    assert len(done.stderr.strip().splitlines()) == 1

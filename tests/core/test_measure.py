@@ -54,10 +54,14 @@ def test_ball_registration_agrees_between_views(native_result: Measurement) -> N
 
 def test_icp_is_reported_with_correspondence_percentiles(native_result: Measurement) -> None:
     icp = native_result.views[1].icp
+    bounds = native_result.config.icp
     assert icp is not None and native_result.views[0].icp is None
     assert 0 < icp.before.fitness <= 1 and icp.before.distance_p50_m <= icp.before.distance_p90_m
-    if icp.accepted:
-        assert icp.after.distance_p50_m < icp.before.distance_p50_m
+    assert icp.accepted == (
+        icp.after.distance_p50_m < icp.before.distance_p50_m
+        and icp.ball_shift_m <= bounds.max_ball_shift_m
+        and icp.rotation_change_deg <= bounds.max_rotation_deg
+    ), icp.reason
 
 
 def test_progress_names_every_stage_in_order(native_capture: Path) -> None:
@@ -120,3 +124,36 @@ def test_a_ball_moved_between_views_fails_registration_naming_it() -> None:
     with pytest.raises(RegistrationFailed) as info:
         _check_ball_distances("views/2", moved, reference, ["red", "yellow", "blue"])
     assert info.value.view == "views/2" and "blue ball" in info.value.message
+
+
+def test_invalid_override_is_a_config_error_naming_the_setting(native_capture: Path) -> None:
+    from canopy_core.errors import ConfigError
+
+    with pytest.raises(ConfigError) as info:
+        measure(native_capture, overrides={"filters": {"min_depth_m": 9.0}})
+    assert info.value.field == "filters" and "max_depth_m" in info.value.message
+    with pytest.raises(ConfigError, match="teal"):
+        measure(native_capture, overrides={"balls": {"colors": ["red", "yellow", "teal"]}})
+
+
+def test_depth_scale_off_by_a_thousand_names_the_depth_file(native_capture: Path, tmp_path: Path) -> None:
+    import shutil
+
+    from canopy_core.errors import CaptureError
+
+    broken = Path(shutil.copytree(native_capture, tmp_path / "scale"))
+    camera_file = broken / "views/1/camera.json"
+    camera = json.loads(camera_file.read_text())
+    camera["depth_scale"] = 1.0  # millimetre PNG declared as metres: every reading is hundreds of metres
+    camera_file.write_text(json.dumps(camera))
+    with pytest.raises(CaptureError) as info:
+        measure(broken)
+    assert info.value.file == "views/1/depth.png" and "no depth reading" in info.value.message
+
+
+def test_one_ball_found_twice_fails_naming_both_colours() -> None:
+    from canopy_core.measure import _check_ball_spacing
+
+    same = np.array([[0.5, 0.1, 3.0], [0.5, 0.1, 3.0], [-0.25, -0.5, 2.9]])
+    with pytest.raises(RegistrationFailed, match="red and yellow balls were found at the same place"):
+        _check_ball_spacing("views/1", same, ["red", "yellow", "blue"], 0.1)

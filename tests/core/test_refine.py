@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import open3d as o3d
+from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from canopy_core.config import IcpConfig
@@ -40,7 +41,7 @@ def test_anchored_icp_undoes_a_small_misregistration() -> None:
     source = apply(misregistration, _ground_and_trunk(rng))
     correction = anchored_icp(
         source,
-        target,
+        cKDTree(target),
         _normals(target),
         apply(misregistration, BALLS),
         BALLS,
@@ -51,14 +52,43 @@ def test_anchored_icp_undoes_a_small_misregistration() -> None:
     assert translation < 0.002 and rotation < 0.05
 
 
-def test_anchored_icp_does_not_slide_along_a_plane() -> None:
+def test_balls_decide_what_a_ground_plane_leaves_free() -> None:
+    """On bare ground, sliding along it costs the surfaces nothing; the balls must set the slide."""
     rng = np.random.default_rng(1)
     plane = np.column_stack([rng.uniform(-1.5, 1.5, (6000, 2)), np.zeros(6000)])
     source = np.column_stack([rng.uniform(-1.5, 1.5, (6000, 2)), rng.normal(0, 0.003, 6000)])
+    slide = np.array([0.006, -0.004, 0.0])
     correction = anchored_icp(
-        source, plane, _normals(plane), BALLS, BALLS, max_correspondence_m=0.05, iterations=30
+        source,
+        cKDTree(plane),
+        _normals(plane),
+        BALLS - slide,
+        BALLS,
+        max_correspondence_m=0.05,
+        iterations=30,
     )
-    assert np.abs(apply(correction, BALLS) - BALLS).max() < 0.002
+    assert np.abs(apply(correction, BALLS - slide) - BALLS).max() < 0.001
+
+
+def test_surfaces_outweigh_balls_that_disagree_slightly_in_tilt() -> None:
+    """Ground and trunk fix tilt and height better than three balls with millimetre errors."""
+    rng = np.random.default_rng(3)
+    target = _ground_and_trunk(rng)
+    tilt = _small_motion(0.3, [0.0, 0.0, 0.0])
+    source = apply(tilt, _ground_and_trunk(rng))
+    noisy_balls = apply(tilt, BALLS) + rng.normal(0, 0.003, BALLS.shape)
+    correction = anchored_icp(
+        source,
+        cKDTree(target),
+        _normals(target),
+        noisy_balls,
+        BALLS,
+        max_correspondence_m=0.05,
+        iterations=30,
+    )
+    residual = correction @ tilt
+    tilt_error_deg = np.degrees(np.arccos(np.clip(residual[2, 2], -1.0, 1.0)))
+    assert tilt_error_deg < 0.05  # balls alone, 3 mm off, would leave about 0.2 deg
 
 
 def test_refinement_is_reported_and_the_reference_never_moves() -> None:
