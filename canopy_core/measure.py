@@ -355,8 +355,8 @@ def _check_ball_distances(view: str, centres: np.ndarray, reference: np.ndarray,
         f"the {colors[worst]} ball's distances to the other balls differ from the first view's by up to "
         f"{disagreement[worst].max() * 1000:.0f} mm",
         view=view,
-        hint=f"the {colors[worst]} ball was moved between views, or something else of its colour was taken "
-        "for it; check with `canopy balls`",
+        hint=f"the {colors[worst]} ball was moved between views, something else of its colour was taken for "
+        "it, or it was too far or too poorly lit to fit well; check with `canopy balls`",
     )
 
 
