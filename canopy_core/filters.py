@@ -89,5 +89,5 @@ def sparse_point_mask(
     if points_m.shape[0] == 0:
         return np.zeros(0, dtype=bool)
     radius = np.maximum(radius_px * range_m / focal_px, 1e-3)
-    counts = cKDTree(points_m).query_ball_point(points_m, r=radius, return_length=True) - 1
+    counts = cKDTree(points_m).query_ball_point(points_m, r=radius, return_length=True, workers=-1) - 1
     return counts >= min_neighbors

@@ -32,6 +32,9 @@ _SURFACE_SIGMA_M = 0.005
 """Depth noise of a Kinect v2 surface point at 3-4 m: the weight of a surface correspondence."""
 _SURFACE_EFFECTIVE_POINTS = 300
 """How many independent measurements all surface correspondences together are worth."""
+_CONVERGED_RAD = 2e-5
+_CONVERGED_M = 1e-4
+"""ICP stops when a step turns less than this (0.001 deg) and moves less than this (0.1 mm)."""
 _ANCHOR_SIGMA_M = 0.003
 """Accuracy of a fitted ball centre: the weight holding the balls together."""
 
@@ -126,7 +129,7 @@ def anchored_icp(
     correction = np.eye(4)
     for _ in range(iterations):
         moved = apply(correction, source_m)
-        distance, index = target.query(moved, distance_upper_bound=max_correspondence_m)
+        distance, index = target.query(moved, distance_upper_bound=max_correspondence_m, workers=-1)
         matched = np.isfinite(distance)
         p, q, n = moved[matched], target.data[index[matched]], target_normals[index[matched]]
         anchors = apply(correction, source_anchors_m)
@@ -144,7 +147,7 @@ def anchored_icp(
         update[:3, :3] = Rotation.from_rotvec(step[:3]).as_matrix()
         update[:3, 3] = step[3:]
         correction = update @ correction
-        if np.linalg.norm(step[:3]) < 1e-6 and np.linalg.norm(step[3:]) < 1e-6:
+        if np.linalg.norm(step[:3]) < _CONVERGED_RAD and np.linalg.norm(step[3:]) < _CONVERGED_M:
             break
     return correction
 
