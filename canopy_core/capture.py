@@ -195,13 +195,11 @@ def _raise_validation(exc: ValidationError, *, file: str, view: str | None = Non
 
 def _load_json(data: bytes, *, file: str, view: str | None) -> Any:
     try:
-        return json.loads(data, parse_constant=_reject_constant)
+        # NaN and Infinity (which careless exporters write) parse as floats, so that validation names the
+        # field that holds them.
+        return json.loads(data)
     except ValueError as exc:
         raise CaptureError(f"not valid JSON ({exc})", file=file, view=view) from exc
-
-
-def _reject_constant(name: str) -> float:
-    raise ValueError(f"{name} is not a finite number")
 
 
 def parse_manifest(data: bytes, *, file: str = "capture.json") -> CaptureManifest:

@@ -7,7 +7,6 @@ Pillow reads the header first, so an oversized image (a decompression bomb) is r
 from __future__ import annotations
 
 import io
-import warnings
 
 import numpy as np
 from PIL import Image
@@ -19,6 +18,10 @@ __all__ = ["DEFAULT_MAX_PIXELS", "decode_color", "decode_depth"]
 DEFAULT_MAX_PIXELS = 40_000_000
 """Largest image accepted, in pixels: well above a 4K colour frame, far below a decompression bomb."""
 
+# The pixel limit is this module's own (max_pixels, checked from the header): Pillow's global one would
+# override it with its own numbers and warnings, whose filters are process-wide and not thread-safe.
+Image.MAX_IMAGE_PIXELS = None
+
 _DEPTH_MODES = {"I;16", "I;16L", "I;16B"}
 _COLOR_MODES = {"RGB", "RGBA", "P"}
 
@@ -28,10 +31,8 @@ def _open(data: bytes, *, file: str, view: str | None, max_pixels: int) -> Image
     if not data:
         raise CaptureError("the file is empty", file=file, view=view)
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("error", Image.DecompressionBombWarning)
-            image = Image.open(io.BytesIO(data))
-    except (OSError, Image.DecompressionBombWarning, Image.DecompressionBombError) as exc:
+        image = Image.open(io.BytesIO(data))
+    except OSError as exc:
         raise CaptureError(f"not a readable PNG or JPEG image ({exc})", file=file, view=view) from exc
     if image.format not in {"PNG", "JPEG"}:
         raise CaptureError(f"is a {image.format} image; PNG or JPEG expected", file=file, view=view)
