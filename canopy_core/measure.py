@@ -26,7 +26,6 @@ from canopy_core.filters import reliable_depth_mask, sparse_point_mask
 from canopy_core.foliage import foliage_mask
 from canopy_core.ground import (
     GroundFrame,
-    GroundHeightMap,
     fit_ground_frame,
     ground_height_map,
     horizontal_distance,
@@ -217,14 +216,7 @@ def measure(
 
     stages.start("register")
     centres = [np.array([found[color].center_m for color in colors]) for found in balls]
-    for view, view_centres in zip(capture.views, centres, strict=True):
-        _check_ball_spacing(view.name, view_centres, colors, config.balls.diameter_m)
-    for view, view_centres in zip(capture.views[1:], centres[1:], strict=True):
-        _check_ball_distances(view.name, view_centres, centres[0], colors)
-    view_to_reference = [register_by_balls(c, centres[0]) for c in centres]
-    residuals = [
-        _ball_residual(pose, c, centres[0]) for pose, c in zip(view_to_reference, centres, strict=True)
-    ]
+    view_to_reference = _register_by_balls([view.name for view in capture.views], centres, config)
 
     stages.start("ground")
     ground = _ground_frame(clouds, view_to_reference, centres[0], config)
@@ -251,23 +243,9 @@ def measure(
         icp_reports = [by_view.get(view.name) for view in capture.views]
 
     stages.start("metrics")
-    balls_world = apply(ground.world_from_reference, centres[0])
     trunk_xy = np.array(ground.trunk_xy_m)
-    ground_map = ground_height_map(
-        np.concatenate(roi_points), radius_m=config.roi.radius_m, band_m=config.ground.search_band_m
-    )
-    tree_masks = _tree_masks(roi_points, balls_world, trunk_xy, ground_map, config)
-    foliage = [foliage_mask(colors, min_index=config.metrics.foliage_min_exgr) for colors in roi_colors]
-    modes: dict[str, CanopyMetrics] = {}
-    for view, points, leafy, mask in zip(capture.views, roi_points, foliage, tree_masks, strict=True):
-        modes[view.name] = _metrics_or_fail(points[mask], leafy[mask], trunk_xy, config, view=view.name)
-    modes[MERGED] = _metrics_or_fail(
-        np.concatenate([points[mask] for points, mask in zip(roi_points, tree_masks, strict=True)]),
-        np.concatenate([leafy[mask] for leafy, mask in zip(foliage, tree_masks, strict=True)]),
-        trunk_xy,
-        config,
-        view=None,
-    )
+    tree_masks = _tree_masks(roi_points, apply(ground.world_from_reference, centres[0]), trunk_xy, config)
+    modes = _modes(capture, roi_points, roi_colors, tree_masks, trunk_xy, config)
 
     diagnostics = tuple(
         ViewDiagnostics(
@@ -278,7 +256,7 @@ def measure(
             sparse_points_removed=outliers[i],
             tree_points=int(np.count_nonzero(tree_masks[i])),
             balls=balls[i],
-            ball_residual_m=residuals[i],
+            ball_residual_m=_ball_residual(view_to_reference[i], centres[i], centres[0]),
             world_from_view=world_from_view[i],
             icp=icp_reports[i],
         )
@@ -315,6 +293,41 @@ def filtered_cloud(view: View, filters: FilterConfig) -> ViewCloud:
             hint="check camera.json's depth_scale (depth units per metre)",
         )
     return backproject(view, keep=keep)
+
+
+def _register_by_balls(
+    views: list[str], centres: list[np.ndarray], config: MeasureConfig
+) -> list[np.ndarray]:
+    """Each view's pose in the first view's frame from its ball centres, after checking the balls agree."""
+    colors = config.balls.colors
+    for view, view_centres in zip(views, centres, strict=True):
+        _check_ball_spacing(view, view_centres, colors, config.balls.diameter_m)
+    for view, view_centres in zip(views[1:], centres[1:], strict=True):
+        _check_ball_distances(view, view_centres, centres[0], colors)
+    return [register_by_balls(view_centres, centres[0]) for view_centres in centres]
+
+
+def _modes(
+    capture: Capture,
+    roi_points: list[np.ndarray],
+    roi_colors: list[np.ndarray],
+    tree_masks: list[np.ndarray],
+    trunk_xy: np.ndarray,
+    config: MeasureConfig,
+) -> dict[str, CanopyMetrics]:
+    """The metrics of each view's tree points alone, and of all views merged (the paper's V1, V2, V1+V2)."""
+    foliage = [foliage_mask(colors, min_index=config.metrics.foliage_min_exgr) for colors in roi_colors]
+    modes: dict[str, CanopyMetrics] = {}
+    for view, points, leafy, mask in zip(capture.views, roi_points, foliage, tree_masks, strict=True):
+        modes[view.name] = _metrics_or_fail(points[mask], leafy[mask], trunk_xy, config, view=view.name)
+    modes[MERGED] = _metrics_or_fail(
+        np.concatenate([points[mask] for points, mask in zip(roi_points, tree_masks, strict=True)]),
+        np.concatenate([leafy[mask] for leafy, mask in zip(foliage, tree_masks, strict=True)]),
+        trunk_xy,
+        config,
+        view=None,
+    )
+    return modes
 
 
 def _check_ball_spacing(view: str, centres: np.ndarray, colors: list[str], diameter_m: float) -> None:
@@ -410,16 +423,15 @@ def _roi_cloud(
 
 
 def _tree_masks(
-    roi_points: list[np.ndarray],
-    balls_world: np.ndarray,
-    trunk_xy: np.ndarray,
-    ground_map: GroundHeightMap,
-    config: MeasureConfig,
+    roi_points: list[np.ndarray], balls_world: np.ndarray, trunk_xy: np.ndarray, config: MeasureConfig
 ) -> list[np.ndarray]:
     """Per view, the points of the tree: above the local ground's clearance, off the balls, not intruders.
 
-    Connectivity is decided on all views together, where the tree is most complete.
+    The ground height map and the intruders are decided on all views together, where both are most complete.
     """
+    ground_map = ground_height_map(
+        np.concatenate(roi_points), radius_m=config.roi.radius_m, band_m=config.ground.search_band_m
+    )
     masks = []
     for points in roi_points:
         mask = ground_map.height_above(points) > _TREE_CLEARANCE_M
