@@ -44,8 +44,9 @@ _MAX_BLOBS = 12
 _MIN_COMPLETENESS = 0.3
 """Least fraction of the pixels a ball covers that must be inliers of its colour (balls seen whole in real
 and simulated Kinect v2 views: 0.5 to 1; spheres through distant background surfaces: 0.25 or less)."""
-_COVERAGE_REFERENCE_RANGE_M = 3.0
-"""Up to this range the inlier tolerance serves the coverage check as it is; beyond, it grows as range²."""
+_TOLERANCE_REFERENCE_RANGE_M = 3.0
+"""Up to this range the configured inlier tolerance holds; beyond, it grows as range², like the depth noise
+of a time-of-flight camera, so a far ball in sun is still fitted as a ball."""
 _MIN_COVERAGE = 0.6
 """Least fraction of the points seen through a ball's outline that lie on it (balls: 0.7 to 1; spheres
 through clusters of leaves of the ball's colour: 0.5 or less)."""
@@ -293,17 +294,19 @@ def _stride(count: int) -> int:
     return int(np.ceil(count / _LEAST_SQUARES_MAX_POINTS))
 
 
+def _range_tolerance(tolerance_m: float, centre: np.ndarray) -> float:
+    """The inlier tolerance for a ball at ``centre`` (camera frame): widened as range² past the reference."""
+    return tolerance_m * max(1.0, (float(np.linalg.norm(centre)) / _TOLERANCE_REFERENCE_RANGE_M) ** 2)
+
+
 def _coverage(scene_m: np.ndarray, sphere: np.ndarray, tolerance_m: float) -> float:
     """Fraction of the points seen through the sphere's outline, and not in front of it, that lie on it.
 
     A solid ball hides whatever is behind it, so nearly every point whose line of sight crosses its outline
     lies on its surface (or in front of it: an occluder); a sphere fitted across unrelated surfaces has many
-    points behind its surface. Depth noise grows with the square of the range, so "on it" widens past
-    ``_COVERAGE_REFERENCE_RANGE_M``: a far ball in sun is still a ball, and unrelated surfaces lie
-    centimetres to decimetres away.
+    points behind its surface.
     """
     centre, radius_m = sphere[:3], sphere[3]
-    tolerance_m *= max(1.0, (float(np.linalg.norm(centre)) / _COVERAGE_REFERENCE_RANGE_M) ** 2)
     distance = np.linalg.norm(scene_m, axis=1)
     closest = scene_m @ centre / distance  # along each line of sight, to its point nearest the centre
     discriminant = closest**2 - (centre @ centre - radius_m**2)
@@ -523,7 +526,7 @@ def _detect(scene: _Scene, color: str, config: BallConfig) -> SphereFit:
                 centre,
                 config.radius_m,
                 nominal_radius_m=config.radius_m,
-                tolerance_m=config.inlier_tolerance_m,
+                tolerance_m=_range_tolerance(config.inlier_tolerance_m, centre),
                 scene_m=scene.points_around(cloud.pixels[selected[blob]]),
             )
         except ValueError:
