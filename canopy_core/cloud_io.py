@@ -1,30 +1,42 @@
-"""Reading and writing coloured point clouds as binary PLY (metres, RGB as 8-bit)."""
+"""Reading and writing coloured point clouds as binary PLY (metres, RGB as 8-bit), with plyfile."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 import numpy as np
-import open3d as o3d
+from plyfile import PlyData, PlyElement
 
 __all__ = ["read_ply", "write_ply"]
 
 
 def write_ply(path: str | Path, points_m: np.ndarray, colors_rgb: np.ndarray | None = None) -> Path:
-    """Write ``(N, 3)`` points (and ``(N, 3)`` uint8 colours) to a binary little-endian PLY file."""
-    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(points_m, dtype=np.float64)))
+    """Write ``(N, 3)`` points (float64 x, y, z) and ``(N, 3)`` uint8 colours as binary little-endian PLY."""
+    fields = [("x", "<f8"), ("y", "<f8"), ("z", "<f8")]
     if colors_rgb is not None:
-        cloud.colors = o3d.utility.Vector3dVector(np.asarray(colors_rgb, dtype=np.float64) / 255.0)
+        fields += [("red", "u1"), ("green", "u1"), ("blue", "u1")]
+    vertices = np.empty(points_m.shape[0], dtype=fields)
+    for axis, name in enumerate("xyz"):
+        vertices[name] = points_m[:, axis]
+    if colors_rgb is not None:
+        for channel, name in enumerate(("red", "green", "blue")):
+            vertices[name] = colors_rgb[:, channel]
     target = Path(path)
-    if not o3d.io.write_point_cloud(target, cloud, write_ascii=False, compressed=False):
-        raise OSError(f"could not write the point cloud to {target}")
+    PlyData([PlyElement.describe(vertices, "vertex")], text=False, byte_order="<").write(str(target))
     return target
 
 
 def read_ply(path: str | Path) -> tuple[np.ndarray, np.ndarray | None]:
-    """Points (m) and, when the file has them, uint8 RGB colours of a PLY file."""
-    cloud = o3d.io.read_point_cloud(Path(path))
-    if not cloud.has_points():
-        raise OSError(f"{path} holds no points or is not a readable PLY file")
-    colors = np.rint(np.asarray(cloud.colors) * 255).astype(np.uint8) if cloud.has_colors() else None
-    return np.asarray(cloud.points), colors
+    """Points (m) and, when the file has them, uint8 RGB colours of a PLY file's vertices."""
+    try:
+        vertices = PlyData.read(str(path))["vertex"]
+    except (OSError, KeyError, ValueError) as exc:
+        raise OSError(f"{path} is not a readable PLY file with vertices ({exc})") from exc
+    points = np.column_stack([np.asarray(vertices[name], dtype=np.float64) for name in "xyz"])
+    names = {prop.name for prop in vertices.properties}
+    if not {"red", "green", "blue"} <= names:
+        return points, None
+    colors = np.column_stack(
+        [np.asarray(vertices[name], dtype=np.uint8) for name in ("red", "green", "blue")]
+    )
+    return points, colors

@@ -12,7 +12,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import open3d as o3d
 from scipy.spatial import cKDTree
 
 from canopy_core.config import GroundConfig
@@ -28,7 +27,8 @@ __all__ = [
 
 _MAX_GROUND_TILT_DEG = 15.0
 """A ground fit tilted more than this from the balls' plane has found something else (a wall, a slope)."""
-_RANSAC_SAMPLE = 30_000
+_RANSAC_SAMPLE = 20_000
+_RANSAC_HYPOTHESES = 200
 _TRUNK_SLICE_M = (0.12, 0.35)
 _TRUNK_SEARCH_RADIUS_M = 0.8
 _TRUNK_EXCLUSION_M = 0.12
@@ -73,18 +73,27 @@ def _plane_fit(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _ransac_ground(points: np.ndarray, tolerance_m: float) -> np.ndarray:
-    """Indices (into ``points``) of the dominant plane's inliers."""
+    """Indices (into ``points``) of the inliers of the plane with most points within ``tolerance_m``.
+
+    All hypotheses (planes through three random points) are scored at once on a sample of the points.
+    """
     rng = np.random.default_rng(0)
     sample = (
         points
         if points.shape[0] <= _RANSAC_SAMPLE
         else points[rng.choice(points.shape[0], _RANSAC_SAMPLE, replace=False)]
     )
-    o3d.utility.random.seed(0)
-    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(sample))
-    (a, b, c, d), _ = cloud.segment_plane(distance_threshold=tolerance_m, ransac_n=3, num_iterations=300)
-    distance = np.abs(points @ np.array([a, b, c]) + d) / np.linalg.norm([a, b, c])
-    return np.flatnonzero(distance < tolerance_m)
+    triples = sample[rng.integers(0, sample.shape[0], size=(_RANSAC_HYPOTHESES, 3))]
+    normals = np.cross(triples[:, 1] - triples[:, 0], triples[:, 2] - triples[:, 0])
+    length = np.linalg.norm(normals, axis=1)
+    usable = length > 1e-9
+    normals = normals[usable] / length[usable, None]
+    offsets = -np.einsum("ij,ij->i", normals, triples[usable, 0])
+    scores = [
+        np.count_nonzero(np.abs(sample @ n + d) < tolerance_m) for n, d in zip(normals, offsets, strict=True)
+    ]
+    best = int(np.argmax(scores))
+    return np.flatnonzero(np.abs(points @ normals[best] + offsets[best]) < tolerance_m)
 
 
 def fit_ground_frame(

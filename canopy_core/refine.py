@@ -17,7 +17,6 @@ from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
-import open3d as o3d
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
@@ -97,12 +96,20 @@ def _closer(after: AlignmentQuality, before: AlignmentQuality) -> bool:
 
 
 def _thinned(points_m: np.ndarray, voxel_m: float) -> tuple[np.ndarray, np.ndarray]:
-    """Voxel-thinned points and their unit normals."""
-    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points_m)).voxel_down_sample(voxel_m)
-    cloud.estimate_normals(
-        o3d.geometry.KDTreeSearchParamHybrid(radius=4 * voxel_m, max_nn=_NORMAL_NEIGHBOURS)
+    """Voxel-thinned points (each voxel's mean) and their unit normals (least-variance direction of the
+    ``_NORMAL_NEIGHBOURS`` nearest thinned points)."""
+    _, cell, counts = np.unique(
+        np.floor(points_m / voxel_m).astype(np.int64), axis=0, return_inverse=True, return_counts=True
     )
-    return np.asarray(cloud.points), np.asarray(cloud.normals)
+    cell = cell.ravel()
+    sums = np.column_stack([np.bincount(cell, weights=points_m[:, axis]) for axis in range(3)])
+    thinned = sums / counts[:, None]
+    neighbours = min(_NORMAL_NEIGHBOURS, thinned.shape[0])
+    _, index = cKDTree(thinned).query(thinned, k=neighbours, workers=-1)
+    local = thinned[index.reshape(thinned.shape[0], neighbours)]
+    local -= local.mean(axis=1, keepdims=True)
+    _, vectors = np.linalg.eigh(np.einsum("nki,nkj->nij", local, local))
+    return thinned, vectors[:, :, 0]
 
 
 def anchored_icp(
