@@ -96,12 +96,11 @@ class BallConfig(BallSet):
         return self.diameter_m / 2.0
 
     def hsv_range(self, color: str) -> list[list[int]]:
-        """The HSV range for ``color``: the capture's override, else the default for that colour name."""
-        if color in self.hsv:
-            return self.hsv[color]
-        if color in DEFAULT_HSV_RANGES:
-            return DEFAULT_HSV_RANGES[color]
-        raise KeyError(color)
+        """The HSV range for ``color``: the capture's override, else the default for that colour name.
+
+        Validation guarantees one of the two exists for every configured colour.
+        """
+        return self.hsv.get(color) or DEFAULT_HSV_RANGES[color]
 
 
 class RoiConfig(_Section):
