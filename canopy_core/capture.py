@@ -8,6 +8,7 @@ A capture is ``capture.json`` (the manifest), and per view ``color.png|jpg``, ``
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
 from typing import Any
@@ -24,14 +25,17 @@ __all__ = [
     "CameraModel",
     "Capture",
     "CaptureManifest",
+    "FileReader",
     "Intrinsics",
     "View",
     "color_file_names",
     "expected_files",
+    "folder_reader",
     "load_capture",
     "load_view",
     "parse_camera",
     "parse_manifest",
+    "read_capture",
 ]
 
 CAPTURE_FORMAT = "canopy-capture/1"
@@ -242,43 +246,75 @@ def expected_files(manifest: CaptureManifest) -> list[str]:
     return [f"{view}/{name}" for view in manifest.views for name in ("camera.json", "depth.png", "color.png")]
 
 
-def _read(root: Path, relative: str, *, view: str | None) -> bytes:
-    path = root / relative
-    try:
-        return path.read_bytes()
-    except FileNotFoundError as exc:
-        raise CaptureError("file is missing", file=relative, view=view) from exc
-    except OSError as exc:
-        raise CaptureError(f"cannot read the file ({exc.strerror})", file=relative, view=view) from exc
+FileReader = Callable[[str], bytes | None]
+"""Returns the bytes of a capture file by its path inside the capture (``views/1/depth.png``), or None
+when the capture has no such file. Lets a capture be read from a folder or from the service's store."""
 
 
-def load_view(root: Path, name: str, *, max_pixels: int = DEFAULT_MAX_PIXELS) -> View:
-    """Load and check one view folder (``root / name``) of a capture."""
+def folder_reader(root: Path) -> FileReader:
+    """A :data:`FileReader` over a capture folder on disk."""
+
+    def read(relative: str) -> bytes | None:
+        try:
+            return (root / relative).read_bytes()
+        except FileNotFoundError:
+            return None
+        except OSError as exc:
+            view = relative.rsplit("/", 1)[0] if "/" in relative else None
+            raise CaptureError(f"cannot read the file ({exc.strerror})", file=relative, view=view) from exc
+
+    return read
+
+
+def _required(read: FileReader, relative: str, *, view: str | None) -> bytes:
+    data = read(relative)
+    if data is None:
+        raise CaptureError("file is missing", file=relative, view=view)
+    return data
+
+
+def load_view(read: FileReader, name: str, *, max_pixels: int = DEFAULT_MAX_PIXELS) -> View:
+    """Load and check one view (``views/<name>``) of a capture through ``read``."""
     camera = parse_camera(
-        _read(root, f"{name}/camera.json", view=name), file=f"{name}/camera.json", view=name
+        _required(read, f"{name}/camera.json", view=name), file=f"{name}/camera.json", view=name
     )
     depth = decode_depth(
-        _read(root, f"{name}/depth.png", view=name),
+        _required(read, f"{name}/depth.png", view=name),
         file=f"{name}/depth.png",
         view=name,
         expected_size=camera.depth.size,
         max_pixels=max_pixels,
     )
-    present = [file for file in color_file_names(name) if (root / file).is_file()]
+    present = {file: data for file in color_file_names(name) if (data := read(file)) is not None}
     if not present:
         raise CaptureError(
             "colour image is missing (color.png or color.jpg)", file=f"{name}/color.png", view=name
         )
     if len(present) > 1:
-        raise CaptureError("both color.png and color.jpg are present; keep one", file=present[0], view=name)
+        raise CaptureError(
+            "both color.png and color.jpg are present; keep one", file=next(iter(present)), view=name
+        )
+    [(color_file, color_bytes)] = present.items()
     color = decode_color(
-        _read(root, present[0], view=name),
-        file=present[0],
+        color_bytes,
+        file=color_file,
         view=name,
         expected_size=camera.color_size,
         max_pixels=max_pixels,
     )
     return View(name=name, depth_raw=depth, color_rgb=color, camera=camera)
+
+
+def read_capture(
+    manifest: CaptureManifest,
+    read: FileReader,
+    *,
+    root: Path | None = None,
+    max_pixels: int = DEFAULT_MAX_PIXELS,
+) -> Capture:
+    """Load and validate every view of a capture whose manifest is already parsed."""
+    views = tuple(load_view(read, name, max_pixels=max_pixels) for name in manifest.views)
+    return Capture(root=root, manifest=manifest, views=views)
 
 
 def load_capture(path: str | Path, *, max_pixels: int = DEFAULT_MAX_PIXELS) -> Capture:
@@ -299,6 +335,6 @@ def load_capture(path: str | Path, *, max_pixels: int = DEFAULT_MAX_PIXELS) -> C
     root = Path(path)
     if not root.is_dir():
         raise CaptureError(f"capture folder {root} does not exist or is not a folder")
-    manifest = parse_manifest(_read(root, "capture.json", view=None))
-    views = tuple(load_view(root, name, max_pixels=max_pixels) for name in manifest.views)
-    return Capture(root=root, manifest=manifest, views=views)
+    read = folder_reader(root)
+    manifest = parse_manifest(_required(read, "capture.json", view=None))
+    return read_capture(manifest, read, root=root, max_pixels=max_pixels)

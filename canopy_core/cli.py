@@ -30,13 +30,7 @@ JsonOpt = Annotated[bool, typer.Option("--json", help="Print one JSON object ins
 
 
 def _print_json(document: dict[str, Any]) -> None:
-    sys.stdout.write(json.dumps(document, indent=1, allow_nan=False, default=_jsonable) + "\n")
-
-
-def _jsonable(value: Any) -> Any:
-    if hasattr(value, "tolist"):
-        return value.tolist()
-    raise TypeError(f"{type(value).__name__} is not JSON serialisable")
+    sys.stdout.write(json.dumps(document, indent=1, allow_nan=False) + "\n")
 
 
 @app.command()
@@ -61,7 +55,7 @@ def measure(
         except OSError as exc:
             raise CanopyError(f"cannot write the cloud to {cloud}: {exc}", field="--cloud") from exc
     if as_json:
-        _print_json(result.to_dict())
+        sys.stdout.write(result.to_json(indent=1) + "\n")
         return
     identity = result.manifest
     typer.echo(f"{identity.orchard} / {identity.row} / {identity.tree}  ({identity.captured_at})")

@@ -2,16 +2,32 @@
 
 from __future__ import annotations
 
+import io
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 from plyfile import PlyData, PlyElement
 
-__all__ = ["read_ply", "write_ply"]
+__all__ = ["ply_bytes", "read_ply", "write_ply"]
 
 
 def write_ply(path: str | Path, points_m: np.ndarray, colors_rgb: np.ndarray | None = None) -> Path:
     """Write ``(N, 3)`` points (float64 x, y, z) and ``(N, 3)`` uint8 colours as binary little-endian PLY."""
+    target = Path(path)
+    with target.open("wb") as stream:
+        _write(stream, points_m, colors_rgb)
+    return target
+
+
+def ply_bytes(points_m: np.ndarray, colors_rgb: np.ndarray | None = None) -> bytes:
+    """The bytes :func:`write_ply` would write, for storing a cloud somewhere other than a file."""
+    stream = io.BytesIO()
+    _write(stream, points_m, colors_rgb)
+    return stream.getvalue()
+
+
+def _write(stream: BinaryIO, points_m: np.ndarray, colors_rgb: np.ndarray | None) -> None:
     fields = [("x", "<f8"), ("y", "<f8"), ("z", "<f8")]
     if colors_rgb is not None:
         fields += [("red", "u1"), ("green", "u1"), ("blue", "u1")]
@@ -21,9 +37,7 @@ def write_ply(path: str | Path, points_m: np.ndarray, colors_rgb: np.ndarray | N
     if colors_rgb is not None:
         for channel, name in enumerate(("red", "green", "blue")):
             vertices[name] = colors_rgb[:, channel]
-    target = Path(path)
-    PlyData([PlyElement.describe(vertices, "vertex")], text=False, byte_order="<").write(str(target))
-    return target
+    PlyData([PlyElement.describe(vertices, "vertex")], text=False, byte_order="<").write(stream)
 
 
 def read_ply(path: str | Path) -> tuple[np.ndarray, np.ndarray | None]:

@@ -8,6 +8,7 @@ ICP), ``metrics`` (per view and merged: the paper's V1, V2 and V1+V2 modes) and 
 
 from __future__ import annotations
 
+import json
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -128,6 +129,16 @@ class Measurement:
             "config": self.config.model_dump(),
             "timings_s": self.timings_s,
         }
+
+    def to_json(self, *, indent: int | None = None) -> str:
+        """:meth:`to_dict` as JSON text: numpy values become plain numbers; NaN is refused, never written."""
+        return json.dumps(self.to_dict(), indent=indent, allow_nan=False, default=_plain)
+
+
+def _plain(value: Any) -> Any:
+    if hasattr(value, "tolist"):
+        return value.tolist()
+    raise TypeError(f"{type(value).__name__} is not JSON serialisable")
 
 
 def config_for(manifest: CaptureManifest, overrides: dict[str, Any] | None = None) -> MeasureConfig:

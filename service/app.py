@@ -1,0 +1,31 @@
+"""The FastAPI application: routers of each domain, problem+json errors, OpenAPI docs at /docs."""
+
+from __future__ import annotations
+
+from fastapi import FastAPI
+
+from service import health
+from service.captures import endpoints as captures
+from service.context import Context
+from service.farm import endpoints as farm
+from service.jobs import endpoints as jobs
+from service.keys import endpoints as keys
+from service.problems import install_problem_handlers
+from service.settings import Settings
+
+__all__ = ["create_app"]
+
+
+def create_app(context: Context | None = None) -> FastAPI:
+    """The API over ``context`` (default: built from the ``CANOPY_*`` environment)."""
+    app = FastAPI(
+        title="Canopy",
+        version="1",
+        summary="Measures fruit-tree canopies (height, width, crown thickness) from RGB-D captures.",
+        description="All lengths are metres. Every route but /healthz needs `Authorization: Bearer <key>`.",
+    )
+    app.state.context = context or Context.from_settings(Settings())
+    install_problem_handlers(app)
+    for module in (health, captures, jobs, farm, keys):
+        app.include_router(module.router)
+    return app

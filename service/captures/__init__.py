@@ -1,0 +1,1 @@
+"""Captures: one tree captured once, its manifest and its uploaded files."""

@@ -1,0 +1,150 @@
+"""HTTP routes of captures: create one, look at it, upload its files."""
+
+from __future__ import annotations
+
+from typing import Annotated, Any
+
+from fastapi import APIRouter, Header, Request, Response
+from fastapi.concurrency import run_in_threadpool
+from sqlalchemy import select
+
+from canopy_core.capture import CaptureManifest
+from service.bodies import read_body
+from service.captures.schemas import CaptureOut, FileOut
+from service.captures.service import capture_manifest, capture_out, create_capture, get_capture
+from service.captures.uploads import check_content, check_path, parse_content_digest, store_file
+from service.deps import CaptureKey, ContextDep, ReadKey
+from service.models import CaptureFile
+from service.problems import (
+    BadRequest,
+    Conflict,
+    InvalidContent,
+    NotFound,
+    PayloadTooLarge,
+    problem_responses,
+)
+from service.storage import sha256_hex
+
+__all__ = ["router"]
+
+router = APIRouter(prefix="/v1/captures", tags=["captures"])
+
+MANIFEST_LIMIT_BYTES = 1024 * 1024
+_MANIFEST_BODY: dict[str, Any] = {
+    "requestBody": {
+        "required": True,
+        "content": {"application/json": {"schema": CaptureManifest.model_json_schema()}},
+    }
+}
+_FILE_BODY: dict[str, Any] = {
+    "requestBody": {
+        "required": True,
+        "content": {"application/octet-stream": {"schema": {"type": "string", "format": "binary"}}},
+    }
+}
+
+
+@router.post(
+    "",
+    response_model=CaptureOut,
+    status_code=201,
+    openapi_extra=_MANIFEST_BODY,
+    responses=problem_responses(
+        Conflict, InvalidContent, PayloadTooLarge, also={200: {"description": "The capture existed already"}}
+    ),
+)
+async def create(request: Request, response: Response, context: ContextDep, _key: CaptureKey) -> CaptureOut:
+    """Create a capture from capture.json's content, or return the one with the same tree and time."""
+    body = await read_body(request, limit_bytes=MANIFEST_LIMIT_BYTES, what="capture.json")
+
+    def create_in_database() -> tuple[CaptureOut, bool]:
+        with context.database.writing() as session:
+            capture, created = create_capture(session, body)
+            return capture_out(session, capture), created
+
+    out, created = await run_in_threadpool(create_in_database)
+    response.status_code = 201 if created else 200
+    response.headers["Location"] = f"/v1/captures/{out.id}"
+    return out
+
+
+@router.get("/{capture_id}", response_model=CaptureOut, responses=problem_responses(NotFound))
+def read(capture_id: int, context: ContextDep, _key: ReadKey) -> CaptureOut:
+    """A capture and which of its files have been received."""
+    with context.database.reading() as session:
+        return capture_out(session, get_capture(session, capture_id))
+
+
+@router.put(
+    "/{capture_id}/files/{path:path}",
+    response_model=FileOut,
+    status_code=201,
+    openapi_extra=_FILE_BODY,
+    responses=problem_responses(
+        BadRequest,
+        NotFound,
+        Conflict,
+        PayloadTooLarge,
+        InvalidContent,
+        also={200: {"description": "The same bytes were stored already"}},
+    ),
+)
+async def put_file(
+    capture_id: int,
+    path: str,
+    request: Request,
+    response: Response,
+    context: ContextDep,
+    _key: CaptureKey,
+    content_digest: Annotated[str | None, Header(description="sha-256=:<base64>: (RFC 9530)")] = None,
+) -> FileOut:
+    """Store one file of the capture, verified against its SHA-256; re-sending the same bytes is harmless."""
+
+    def locate() -> tuple[str, CaptureFile | None]:
+        with context.database.reading() as session:
+            capture = get_capture(session, capture_id)
+            view = check_path(capture_manifest(capture), path)
+            stored = session.scalar(
+                select(CaptureFile).where(CaptureFile.capture_id == capture_id, CaptureFile.path == path)
+            )
+            return view, stored
+
+    view, stored = await run_in_threadpool(locate)
+    declared = parse_content_digest(content_digest)
+    if stored is not None and stored.sha256 != declared:
+        raise Conflict(
+            f"{path} is already stored with other content (sha-256 {stored.sha256}); "
+            "a stored file is never replaced",
+            code="file_conflict",
+            file=path,
+            view=view,
+        )
+    data = await read_body(request, limit_bytes=context.settings.max_upload_bytes, what=path)
+    actual = sha256_hex(data)
+    if actual != declared:
+        raise BadRequest(
+            f"the body's SHA-256 ({actual}) is not the one Content-Digest declares ({declared}); "
+            "the file was damaged on the way: send it again",
+            code="digest_mismatch",
+            file=path,
+            field="Content-Digest",
+        )
+    if stored is not None:
+        response.status_code = 200
+        return FileOut.model_validate(stored, from_attributes=True)
+    facts = await run_in_threadpool(
+        check_content, data, path=path, view=view, max_pixels=context.settings.max_image_pixels
+    )
+
+    def persist() -> tuple[FileOut, bool]:
+        context.store.put(data)
+        with context.database.writing() as session:
+            capture = get_capture(session, capture_id)
+            record, created = store_file(
+                context, session, capture, path=path, view=view, data=data, facts=facts
+            )
+            return FileOut.model_validate(record, from_attributes=True), created
+
+    out, created = await run_in_threadpool(persist)
+    response.status_code = 201 if created else 200
+    return out

@@ -1,0 +1,37 @@
+"""What the captures endpoints answer."""
+
+from __future__ import annotations
+
+from datetime import datetime
+
+from pydantic import BaseModel, Field
+
+__all__ = ["CaptureOut", "FileOut"]
+
+
+class CaptureOut(BaseModel):
+    """A capture and how far its upload has come."""
+
+    id: int
+    orchard: str
+    row: str
+    tree: str
+    tree_id: int
+    captured_at: datetime
+    views: list[str]
+    files_expected: list[str] = Field(
+        description="Every file the capture needs; a view's colour may be color.png or color.jpg."
+    )
+    files_received: list[str]
+    files_missing: list[str]
+    created_at: datetime
+
+
+class FileOut(BaseModel):
+    """One stored file of a capture."""
+
+    capture_id: int
+    path: str
+    sha256: str
+    size_bytes: int
+    created_at: datetime

@@ -1,0 +1,143 @@
+"""Creating captures (idempotently, by tree and capture time) and reporting which files they hold."""
+
+from __future__ import annotations
+
+import json
+from datetime import datetime
+
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+from canopy_core.capture import CaptureManifest, color_file_names, expected_files, parse_manifest
+from canopy_core.errors import CaptureError
+from service.captures.schemas import CaptureOut
+from service.models import Capture, CaptureFile, Orchard, Row, Tree
+from service.problems import Conflict, NotFound
+
+__all__ = [
+    "capture_manifest",
+    "capture_out",
+    "create_capture",
+    "get_capture",
+    "missing_files",
+    "parse_captured_at",
+]
+
+
+def parse_captured_at(manifest: CaptureManifest) -> datetime:
+    """The capture time, aware: the service orders captures, so it needs ISO 8601 with a time zone."""
+    try:
+        moment = datetime.fromisoformat(manifest.captured_at)
+    except ValueError as exc:
+        raise CaptureError(
+            f"captured_at {manifest.captured_at!r} is not an ISO 8601 time (e.g. 2026-11-20T08:31:00Z)",
+            file="capture.json",
+            field="captured_at",
+        ) from exc
+    if moment.tzinfo is None:
+        raise CaptureError(
+            f"captured_at {manifest.captured_at!r} has no time zone; add Z or an offset such as +02:00",
+            file="capture.json",
+            field="captured_at",
+        )
+    return moment
+
+
+def _tree(session: Session, manifest: CaptureManifest) -> Tree:
+    orchard = session.scalar(select(Orchard).where(Orchard.name == manifest.orchard))
+    if orchard is None:
+        orchard = Orchard(name=manifest.orchard)
+        session.add(orchard)
+        session.flush()
+    row = session.scalar(select(Row).where(Row.orchard_id == orchard.id, Row.name == manifest.row))
+    if row is None:
+        row = Row(orchard_id=orchard.id, name=manifest.row)
+        session.add(row)
+        session.flush()
+    tree = session.scalar(select(Tree).where(Tree.row_id == row.id, Tree.name == manifest.tree))
+    if tree is None:
+        tree = Tree(row_id=row.id, name=manifest.tree)
+        session.add(tree)
+        session.flush()
+    return tree
+
+
+def create_capture(session: Session, body: bytes) -> tuple[Capture, bool]:
+    """The capture ``body`` (capture.json's bytes) describes, and whether it was created now.
+
+    The same orchard, row, tree and capture time name the same capture: sending it again returns the one
+    stored. A different capture.json for that tree and time is a conflict, never a second capture.
+    """
+    manifest = parse_manifest(body)
+    captured_at = parse_captured_at(manifest)
+    document = json.loads(body)
+    tree = _tree(session, manifest)
+    existing = session.scalar(
+        select(Capture).where(Capture.tree_id == tree.id, Capture.captured_at == captured_at)
+    )
+    if existing is not None:
+        if existing.manifest != document:
+            raise Conflict(
+                f"tree {manifest.tree} of row {manifest.row} in {manifest.orchard} already has a capture at "
+                f"{manifest.captured_at} (id {existing.id}) with a different capture.json",
+                file="capture.json",
+                capture_id=existing.id,
+            )
+        return existing, False
+    capture = Capture(tree_id=tree.id, captured_at=captured_at, manifest=document)
+    session.add(capture)
+    session.flush()
+    return capture, True
+
+
+def get_capture(session: Session, capture_id: int) -> Capture:
+    """The capture with this id, or a 404 problem."""
+    capture = session.get(Capture, capture_id)
+    if capture is None:
+        raise NotFound(f"no capture with id {capture_id}", capture_id=capture_id)
+    return capture
+
+
+def capture_manifest(capture: Capture) -> CaptureManifest:
+    """The stored manifest, parsed (it was validated when the capture was created)."""
+    return CaptureManifest.model_validate(capture.manifest)
+
+
+def _received(session: Session, capture_id: int) -> list[str]:
+    return list(
+        session.scalars(
+            select(CaptureFile.path).where(CaptureFile.capture_id == capture_id).order_by(CaptureFile.path)
+        )
+    )
+
+
+def missing_files(manifest: CaptureManifest, received: list[str]) -> list[str]:
+    """Files the capture still needs; a view's colour is missing only when neither PNG nor JPEG came."""
+    have = set(received)
+    missing = []
+    for view in manifest.views:
+        missing += [f"{view}/{name}" for name in ("camera.json", "depth.png") if f"{view}/{name}" not in have]
+        colors = color_file_names(view)
+        if not have.intersection(colors):
+            missing.append(colors[0])
+    return missing
+
+
+def capture_out(session: Session, capture: Capture) -> CaptureOut:
+    """The capture as the API shows it, with its files received and missing."""
+    manifest = capture_manifest(capture)
+    tree = session.get_one(Tree, capture.tree_id)
+    received = _received(session, capture.id)
+    return CaptureOut(
+        id=capture.id,
+        orchard=manifest.orchard,
+        row=manifest.row,
+        tree=manifest.tree,
+        tree_id=tree.id,
+        captured_at=capture.captured_at,
+        views=manifest.views,
+        files_expected=expected_files(manifest),
+        files_received=received,
+        files_missing=missing_files(manifest, received),
+        created_at=capture.created_at,
+    )

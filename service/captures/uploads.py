@@ -1,0 +1,197 @@
+"""Receiving one file of a capture: its path, its RFC 9530 digest, its content, and storing it once.
+
+The content is checked with the measurement core's own rules (``parse_camera``, ``decode_depth``,
+``decode_color``), so a file the service accepts is a file the measurement can read. Sizes are checked
+against camera.json whichever arrives first. The bytes are made durable in the blob store before the record
+that acknowledges them is committed.
+"""
+
+from __future__ import annotations
+
+import base64
+import binascii
+import re
+from dataclasses import dataclass
+from pathlib import PurePosixPath
+
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+from canopy_core.capture import CameraModel, CaptureManifest, color_file_names, parse_camera
+from canopy_core.errors import CaptureError
+from canopy_core.images import decode_color, decode_depth
+from service.context import Context
+from service.models import Capture, CaptureFile
+from service.problems import BadRequest, Conflict, InvalidContent
+from service.storage import sha256_hex
+
+__all__ = ["FileFacts", "check_content", "check_path", "parse_content_digest", "store_file"]
+
+_VIEW_FILES = ("camera.json", "depth.png", "color.png", "color.jpg")
+_DIGEST_MEMBER = re.compile(r"\s*([A-Za-z0-9-]+)\s*=\s*:([A-Za-z0-9+/=]*):\s*")
+
+
+@dataclass(frozen=True)
+class FileFacts:
+    """What a checked file's content says about it: image size, or the camera it describes."""
+
+    image_width: int | None = None
+    image_height: int | None = None
+    camera: CameraModel | None = None
+
+
+def check_path(manifest: CaptureManifest, path: str) -> str:
+    """The view a file path belongs to; a 422 problem for a path outside the capture or not in it."""
+    parts = PurePosixPath(path).parts
+    if path.startswith("/") or "\\" in path or any(part in {"..", "."} for part in path.split("/")):
+        raise InvalidContent(
+            f"file path {path!r} points outside the capture; use a path such as views/1/depth.png",
+            code="invalid_path",
+            file=path,
+        )
+    view = "/".join(parts[:-1])
+    if len(parts) != 3 or view not in manifest.views or parts[-1] not in _VIEW_FILES:
+        raise InvalidContent(
+            f"file path {path!r} is not a file of this capture: its views are {', '.join(manifest.views)}, "
+            f"each with {', '.join(_VIEW_FILES[:3])} (or color.jpg)",
+            code="invalid_path",
+            file=path,
+        )
+    return view
+
+
+def parse_content_digest(header: str | None) -> str:
+    """The SHA-256 hex digest a ``Content-Digest`` header (RFC 9530) declares; 400 if absent or unusable."""
+    if not header:
+        raise BadRequest(
+            "send the file's SHA-256 as 'Content-Digest: sha-256=:<base64>:' (RFC 9530)",
+            code="digest_missing",
+            field="Content-Digest",
+        )
+    for member in header.split(","):
+        match = _DIGEST_MEMBER.fullmatch(member)
+        if match and match.group(1).lower() == "sha-256":
+            try:
+                raw = base64.b64decode(match.group(2), validate=True)
+            except binascii.Error:
+                raw = b""
+            if len(raw) != 32:
+                raise BadRequest(
+                    "Content-Digest's sha-256 value is not the base64 of a 32-byte digest",
+                    code="digest_invalid",
+                    field="Content-Digest",
+                )
+            return raw.hex()
+    raise BadRequest(
+        f"Content-Digest {header!r} has no sha-256 member; only sha-256 is accepted",
+        code="digest_invalid",
+        field="Content-Digest",
+    )
+
+
+def check_content(data: bytes, *, path: str, view: str, max_pixels: int) -> FileFacts:
+    """Check a file's bytes by its kind on their own (sizes against camera.json come at storing)."""
+    name = path.rsplit("/", 1)[-1]
+    if name == "camera.json":
+        return FileFacts(camera=parse_camera(data, file=path, view=view))
+    if name == "depth.png":
+        depth = decode_depth(data, file=path, view=view, max_pixels=max_pixels)
+        return FileFacts(image_width=depth.shape[1], image_height=depth.shape[0])
+    color = decode_color(data, file=path, view=view, max_pixels=max_pixels)
+    return FileFacts(image_width=color.shape[1], image_height=color.shape[0])
+
+
+def _stored_camera(context: Context, files: dict[str, CaptureFile], view: str) -> CameraModel | None:
+    record = files.get(f"{view}/camera.json")
+    if record is None:
+        return None
+    return parse_camera(context.store.read(record.sha256), file=record.path, view=view)
+
+
+def _check_sizes(
+    context: Context, files: dict[str, CaptureFile], *, path: str, view: str, facts: FileFacts
+) -> None:
+    """Depth and colour sizes must agree with camera.json, whichever of them came first."""
+    camera = facts.camera or _stored_camera(context, files, view)
+    if camera is None:
+        return
+    images = (
+        {path: (facts.image_width, facts.image_height)}
+        if facts.camera is None
+        else {
+            record.path: (record.image_width, record.image_height)
+            for record in files.values()
+            if record.path.startswith(f"{view}/") and record.image_width is not None
+        }
+    )
+    for image_path, (width, height) in images.items():
+        is_depth = image_path.endswith("/depth.png")
+        expected = camera.depth.size if is_depth else camera.color_size
+        if (width, height) != expected:
+            what = (
+                "depth_intrinsics"
+                if is_depth
+                else ("depth_intrinsics" if camera.registered else "color_intrinsics")
+            )
+            raise CaptureError(
+                f"{image_path} is {width}x{height} but {view}/camera.json {what} says "
+                f"{expected[0]}x{expected[1]}",
+                file=path,
+                view=view,
+                field=what if facts.camera is not None else None,
+            )
+
+
+def store_file(
+    context: Context,
+    session: Session,
+    capture: Capture,
+    *,
+    path: str,
+    view: str,
+    data: bytes,
+    facts: FileFacts,
+) -> tuple[CaptureFile, bool]:
+    """Record a checked file (its blob already durable); ``(record, created)``.
+
+    The same bytes for a stored path are acknowledged again (not created); different bytes, or a second
+    colour image for a view, are a 409 conflict. Runs inside the write transaction, so the checks against
+    other files see every file acknowledged before.
+    """
+    sha256 = sha256_hex(data)
+    files = {
+        record.path: record
+        for record in session.scalars(select(CaptureFile).where(CaptureFile.capture_id == capture.id))
+    }
+    existing = files.get(path)
+    if existing is not None:
+        if existing.sha256 != sha256:
+            raise Conflict(
+                f"{path} is already stored with other content (sha-256 {existing.sha256}); "
+                "a stored file is never replaced",
+                code="file_conflict",
+                file=path,
+                view=view,
+            )
+        return existing, False
+    if path in color_file_names(view):
+        other = next((name for name in color_file_names(view) if name != path and name in files), None)
+        if other is not None:
+            raise Conflict(
+                f"{view} already has its colour image as {other}; send one of color.png or color.jpg",
+                code="file_conflict",
+                file=path,
+                view=view,
+            )
+    _check_sizes(context, files, path=path, view=view, facts=facts)
+    record = CaptureFile(
+        capture_id=capture.id,
+        path=path,
+        sha256=sha256,
+        size_bytes=len(data),
+        image_width=facts.image_width,
+        image_height=facts.image_height,
+    )
+    session.add(record)
+    session.flush()
+    return record, True

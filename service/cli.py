@@ -1,0 +1,184 @@
+"""The whole ``canopy`` command line: the measurement core's commands, plus the service's ``serve``,
+``worker``, ``up`` (both together: the embedded default) and ``keys``.
+
+Heavy imports (FastAPI, SQLAlchemy, uvicorn) happen inside the commands, so ``canopy measure`` and
+``canopy --help`` do not pay for them.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated
+
+import typer
+
+from canopy_core.cli import app
+from canopy_core.cli import main as core_main
+
+if TYPE_CHECKING:
+    from service.context import Context
+    from service.settings import Settings
+
+__all__ = ["app", "main"]
+
+HostOpt = Annotated[str, typer.Option(help="Address to listen on.")]
+PortOpt = Annotated[int, typer.Option(min=1, max=65535, help="TCP port to listen on.")]
+DataOpt = Annotated[
+    Path | None, typer.Option("--data", help="Data folder (database and blobs); default $CANOPY_DATA_DIR.")
+]
+
+keys_app = typer.Typer(help="Create, list and revoke API keys (in the database the settings name).")
+app.add_typer(keys_app, name="keys")
+
+
+def _settings(data: Path | None = None) -> Settings:
+    from service.settings import Settings
+
+    return Settings(data_dir=data) if data is not None else Settings()
+
+
+def _migrated_context(settings: Settings) -> Context:
+    from service.context import Context
+    from service.migrate import upgrade
+
+    context = Context.from_settings(settings)
+    upgrade(context.database)
+    return context
+
+
+def _serve(context: Context, host: str, port: int) -> None:
+    import uvicorn
+
+    from service.app import create_app
+
+    uvicorn.run(create_app(context), host=host, port=port, log_level="info", access_log=False)
+
+
+@app.command()
+def serve(host: HostOpt = "127.0.0.1", port: PortOpt = 8000) -> None:
+    """Run the HTTP API alone (start workers with `canopy worker`); migrates the database first."""
+    _serve(_migrated_context(_settings()), host, port)
+
+
+@app.command()
+def worker() -> None:
+    """Run one worker: claims measurement jobs and runs them, until SIGTERM or Ctrl-C."""
+    # The worker is its own program (python -m worker): the service never imports it.
+    os.execv(sys.executable, [sys.executable, "-m", "worker"])
+
+
+class _WorkerProcess:
+    """The worker of `canopy up`, started again if it ever dies."""
+
+    def __init__(self, environment: dict[str, str]) -> None:
+        self._environment = environment
+        self._stopping = threading.Event()
+        self._process = self._start()
+        threading.Thread(target=self._watch, name="worker-watch", daemon=True).start()
+
+    def _start(self) -> subprocess.Popen[bytes]:
+        return subprocess.Popen([sys.executable, "-m", "worker"], env=self._environment)
+
+    def _watch(self) -> None:
+        while not self._stopping.is_set():
+            code = self._process.wait()
+            if self._stopping.is_set():
+                return
+            typer.echo(f"worker exited with code {code}; starting it again", err=True)
+            time.sleep(1.0)
+            self._process = self._start()
+
+    def stop(self) -> None:
+        self._stopping.set()
+        self._process.terminate()
+        try:
+            self._process.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            self._process.kill()
+
+
+@app.command()
+def up(host: HostOpt = "127.0.0.1", port: PortOpt = 8000, data: DataOpt = None) -> None:
+    """The embedded default: API and one worker on a SQLite file in the data folder (./canopy-data).
+
+    Creates the database on first start, and an admin key, printed once.
+    """
+    from service.keys.service import create_key, list_keys
+
+    settings = _settings(data)
+    context = _migrated_context(settings)
+    with context.database.writing() as session:
+        first_key = None if list_keys(session) else create_key(session, name="admin", scopes=["admin"]).key
+    if first_key is not None:
+        typer.echo("Created the first API key (admin scope). It is shown this once; keep it:")
+        typer.echo(f"  {first_key}")
+    typer.echo(f"Data in {settings.data_dir.resolve()}; API on http://{host}:{port} (docs at /docs)")
+    environment = {**os.environ, "CANOPY_DATA_DIR": str(settings.data_dir.resolve())}
+    worker_process = _WorkerProcess(environment)
+    try:
+        _serve(context, host, port)
+    finally:
+        worker_process.stop()
+
+
+@keys_app.command("create")
+def keys_create(
+    scope: Annotated[list[str], typer.Option("--scope", help="capture, read or admin; repeat for several.")],
+    name: Annotated[str, typer.Option(help="Who or what the key is for.")] = "unnamed",
+) -> None:
+    """Create a key; it is printed alone on the last line, and never shown again."""
+    from service.keys.service import create_key
+
+    context = _migrated_context(_settings())
+    try:
+        with context.database.writing() as session:
+            new = create_key(session, name=name, scopes=scope)
+            prefix, scopes = new.record.prefix, new.record.scopes
+    except ValueError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from exc
+    typer.echo(f"Created key {prefix} ({scopes}) named {name!r}:", err=True)
+    typer.echo(new.key)
+
+
+@keys_app.command("list")
+def keys_list() -> None:
+    """Every key: prefix, scopes, name, created, revoked."""
+    from service.keys.service import list_keys
+
+    context = _migrated_context(_settings())
+    with context.database.reading() as session:
+        records = list_keys(session)
+    typer.echo(f"{'prefix':<10}{'scopes':<22}{'created':<22}{'revoked':<22}name")
+    for record in records:
+        revoked = f"{record.revoked_at:%Y-%m-%d %H:%M:%S}" if record.revoked_at else "-"
+        typer.echo(
+            f"{record.prefix:<10}{record.scopes:<22}{record.created_at:%Y-%m-%d %H:%M:%S}   "
+            f"{revoked:<22}{record.name}"
+        )
+
+
+@keys_app.command("revoke")
+def keys_revoke(
+    prefix: Annotated[str, typer.Argument(help="The key's prefix, as `keys list` shows.")],
+) -> None:
+    """Revoke a key: it stops working at once."""
+    from service.keys.service import revoke_key
+
+    context = _migrated_context(_settings())
+    with context.database.writing() as session:
+        record = revoke_key(session, prefix=prefix)
+    if record is None:
+        typer.echo(f"error: no API key with prefix {prefix!r}", err=True)
+        raise typer.Exit(2)
+    typer.echo(f"revoked {prefix}")
+
+
+def main() -> None:
+    """Console-script entry point of ``canopy``."""
+    core_main()

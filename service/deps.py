@@ -1,0 +1,49 @@
+"""FastAPI dependencies: the shared context and API-key checks, as ``Annotated`` aliases for routes."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Annotated
+
+from fastapi import Depends, Request
+
+from service.context import Context
+from service.keys.service import authenticate, grants
+from service.models import ApiKey
+from service.problems import Forbidden, Unauthorized
+
+__all__ = ["AdminKey", "CaptureKey", "ContextDep", "ReadKey"]
+
+
+def get_context(request: Request) -> Context:
+    """The context the app was built with."""
+    context: Context = request.app.state.context
+    return context
+
+
+ContextDep = Annotated[Context, Depends(get_context)]
+
+
+def _require(scope: str) -> Callable[[Request, Context], ApiKey]:
+    def check(request: Request, context: ContextDep) -> ApiKey:
+        header = request.headers.get("authorization", "")
+        kind, _, key = header.partition(" ")
+        if kind.lower() != "bearer" or not key.strip():
+            raise Unauthorized("send the API key as 'Authorization: Bearer <key>'")
+        with context.database.reading() as session:
+            record = authenticate(session, key.strip())
+        if record is None:
+            raise Unauthorized("the API key is unknown or revoked")
+        if not grants(record, scope):
+            raise Forbidden(
+                f"this request needs the '{scope}' scope; key {record.prefix} has {record.scopes}",
+                scope=scope,
+            )
+        return record
+
+    return check
+
+
+ReadKey = Annotated[ApiKey, Depends(_require("read"))]
+CaptureKey = Annotated[ApiKey, Depends(_require("capture"))]
+AdminKey = Annotated[ApiKey, Depends(_require("admin"))]

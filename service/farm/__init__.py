@@ -1,0 +1,1 @@
+"""The farm management system's view: orchards, rows, trees, measurements and CSV export."""

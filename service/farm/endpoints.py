@@ -1,0 +1,118 @@
+"""HTTP routes of the farm management system's view: orchards, rows, trees, measurements, CSV, clouds."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from typing import Annotated, Any
+
+from fastapi import APIRouter, Query
+from fastapi.responses import FileResponse, StreamingResponse
+from pydantic import AwareDatetime
+
+from service.deps import ContextDep, ReadKey
+from service.farm.schemas import MeasurementSummary, OrchardOut, RowOut, TreeOut
+from service.farm.service import (
+    get_measurement,
+    list_orchards,
+    list_rows,
+    list_tree_measurements,
+    list_trees,
+    measurement_document,
+    measurements_csv,
+)
+from service.pagination import CursorQuery, LimitQuery, Page
+from service.problems import BadRequest, NotFound, problem_responses
+
+__all__ = ["router"]
+
+router = APIRouter(prefix="/v1", tags=["farm"])
+_LISTS = problem_responses(BadRequest, NotFound)
+
+
+@router.get("/orchards", response_model=Page[OrchardOut], responses=_LISTS)
+def orchards(
+    context: ContextDep, _key: ReadKey, cursor: CursorQuery = None, limit: LimitQuery = 100
+) -> Page[OrchardOut]:
+    """Every orchard."""
+    with context.database.reading() as session:
+        return list_orchards(session, cursor=cursor, limit=limit)
+
+
+@router.get("/orchards/{orchard_id}/rows", response_model=Page[RowOut], responses=_LISTS)
+def rows(
+    orchard_id: int, context: ContextDep, _key: ReadKey, cursor: CursorQuery = None, limit: LimitQuery = 100
+) -> Page[RowOut]:
+    """The rows of an orchard."""
+    with context.database.reading() as session:
+        return list_rows(session, orchard_id, cursor=cursor, limit=limit)
+
+
+@router.get("/rows/{row_id}/trees", response_model=Page[TreeOut], responses=_LISTS)
+def trees(
+    row_id: int, context: ContextDep, _key: ReadKey, cursor: CursorQuery = None, limit: LimitQuery = 100
+) -> Page[TreeOut]:
+    """The trees of a row, each with its latest measurement."""
+    with context.database.reading() as session:
+        return list_trees(session, row_id, cursor=cursor, limit=limit)
+
+
+@router.get("/trees/{tree_id}/measurements", response_model=Page[MeasurementSummary], responses=_LISTS)
+def tree_measurements(
+    tree_id: int, context: ContextDep, _key: ReadKey, cursor: CursorQuery = None, limit: LimitQuery = 100
+) -> Page[MeasurementSummary]:
+    """A tree's measurements, newest first."""
+    with context.database.reading() as session:
+        return list_tree_measurements(session, tree_id, cursor=cursor, limit=limit)
+
+
+@router.get(
+    "/measurements.csv",
+    response_class=StreamingResponse,
+    responses=problem_responses(
+        BadRequest, also={200: {"content": {"text/csv": {}}, "description": "One line per measurement"}}
+    ),
+)
+def measurements_export(
+    context: ContextDep,
+    _key: ReadKey,
+    orchard: Annotated[str | None, Query(description="Orchard name")] = None,
+    row: Annotated[str | None, Query(description="Row name")] = None,
+    since: Annotated[AwareDatetime | None, Query(description="Captured at or after (ISO 8601)")] = None,
+) -> StreamingResponse:
+    """Measurements as CSV (metres), for a row, an orchard or everything."""
+
+    def lines() -> Iterator[str]:
+        with context.database.reading() as session:
+            yield from measurements_csv(session, orchard=orchard, row=row, since=since)
+
+    return StreamingResponse(
+        lines(),
+        media_type="text/csv; charset=utf-8",
+        headers={"Content-Disposition": 'attachment; filename="measurements.csv"'},
+    )
+
+
+@router.get("/measurements/{measurement_id}", responses=problem_responses(NotFound))
+def measurement(measurement_id: int, context: ContextDep, _key: ReadKey) -> dict[str, Any]:
+    """A measurement: merged metrics on top, ``modes`` per view and merged, ``registration``, ``config``."""
+    with context.database.reading() as session:
+        return measurement_document(session, get_measurement(session, measurement_id))
+
+
+@router.get(
+    "/measurements/{measurement_id}/cloud.ply",
+    response_class=FileResponse,
+    responses=problem_responses(
+        NotFound,
+        also={200: {"content": {"application/octet-stream": {}}, "description": "Binary PLY, metres"}},
+    ),
+)
+def cloud(measurement_id: int, context: ContextDep, _key: ReadKey) -> FileResponse:
+    """The fused cloud of the measured views in the world frame (z up, ground at the trunk z = 0)."""
+    with context.database.reading() as session:
+        record = get_measurement(session, measurement_id)
+    return FileResponse(
+        context.store.path(record.cloud_sha256),
+        media_type="application/octet-stream",
+        filename=f"measurement-{measurement_id}.ply",
+    )

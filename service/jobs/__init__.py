@@ -1,0 +1,1 @@
+"""Measurement jobs: the queue the API fills and workers drain, with leases and retries."""

@@ -1,0 +1,85 @@
+"""HTTP routes of jobs: start a measurement, poll it (with ETag), list jobs."""
+
+from __future__ import annotations
+
+import hashlib
+from typing import Annotated
+
+from fastapi import APIRouter, Header, Query, Request, Response
+
+from service.captures.service import get_capture
+from service.deps import CaptureKey, ContextDep, ReadKey
+from service.jobs.schemas import JobOut, JobRequest, JobState
+from service.jobs.service import create_job, get_job, job_out, list_jobs
+from service.pagination import CursorQuery, LimitQuery, Page
+from service.problems import BadRequest, Conflict, InvalidContent, NotFound, problem_responses
+
+__all__ = ["router"]
+
+router = APIRouter(tags=["jobs"])
+
+
+@router.post(
+    "/v1/captures/{capture_id}/jobs",
+    response_model=JobOut,
+    status_code=202,
+    responses=problem_responses(NotFound, Conflict, InvalidContent),
+)
+def start(
+    capture_id: int,
+    response: Response,
+    context: ContextDep,
+    _key: CaptureKey,
+    request: JobRequest | None = None,
+    idempotency_key: Annotated[
+        str | None, Header(max_length=200, description="Repeat it to get the same job back")
+    ] = None,
+) -> JobOut:
+    """Queue a measurement of a capture whose files have all arrived; 409 while some are missing."""
+    with context.database.writing() as session:
+        capture = get_capture(session, capture_id)
+        job, _created = create_job(
+            session,
+            capture,
+            overrides=request.config if request else None,
+            idempotency_key=idempotency_key,
+        )
+        out = job_out(session, job)
+    response.headers["Location"] = f"/v1/jobs/{out.id}"
+    return out
+
+
+@router.get(
+    "/v1/jobs/{job_id}",
+    response_model=JobOut,
+    responses=problem_responses(NotFound, also={304: {"description": "Unchanged since the ETag sent"}}),
+)
+def read(
+    job_id: int,
+    http_request: Request,
+    context: ContextDep,
+    _key: ReadKey,
+) -> Response:
+    """A job's state, stage and progress; send If-None-Match with the last ETag to get 304 while unchanged."""
+    with context.database.reading() as session:
+        out = job_out(session, get_job(session, job_id))
+    body = out.model_dump_json().encode()
+    etag = f'"{hashlib.sha256(body).hexdigest()[:32]}"'
+    headers = {"ETag": etag, "Cache-Control": "no-cache"}
+    if etag in {tag.strip() for tag in http_request.headers.get("if-none-match", "").split(",")}:
+        return Response(status_code=304, headers=headers)
+    return Response(body, media_type="application/json", headers=headers)
+
+
+@router.get("/v1/jobs", response_model=Page[JobOut], responses=problem_responses(BadRequest))
+def index(
+    context: ContextDep,
+    _key: ReadKey,
+    state: Annotated[JobState | None, Query(description="Only jobs in this state")] = None,
+    capture_id: Annotated[int | None, Query(description="Only jobs of this capture")] = None,
+    cursor: CursorQuery = None,
+    limit: LimitQuery = 100,
+) -> Page[JobOut]:
+    """Jobs, oldest first."""
+    with context.database.reading() as session:
+        return list_jobs(session, state=state, capture_id=capture_id, cursor=cursor, limit=limit)

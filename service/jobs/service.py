@@ -1,0 +1,108 @@
+"""Starting measurement jobs and reading their state."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+from canopy_core.errors import ConfigError
+from canopy_core.measure import config_for
+from service.captures.service import capture_manifest, missing_files
+from service.jobs.schemas import JobError, JobOut
+from service.models import Capture, CaptureFile, Job, Measurement
+from service.pagination import Page, decode_cursor, page_of
+from service.problems import Conflict, NotFound
+
+__all__ = ["create_job", "get_job", "job_out", "list_jobs"]
+
+
+def create_job(
+    session: Session, capture: Capture, *, overrides: dict[str, Any] | None, idempotency_key: str | None
+) -> tuple[Job, bool]:
+    """Queue a measurement of a complete capture; ``(job, created)``.
+
+    A request repeated with the same ``Idempotency-Key``, or while a job with the same settings is still
+    queued or running, returns that job instead of starting another.
+    """
+    manifest = capture_manifest(capture)
+    received = list(session.scalars(select(CaptureFile.path).where(CaptureFile.capture_id == capture.id)))
+    missing = missing_files(manifest, received)
+    if missing:
+        raise Conflict(
+            f"capture {capture.id} still misses {len(missing)} file(s): {', '.join(missing)}",
+            code="files_missing",
+            missing=missing,
+        )
+    try:
+        config_for(manifest, overrides)
+    except ConfigError as exc:
+        exc.field = f"config.{exc.field}" if exc.field else "config"
+        raise
+    same = select(Job).where(Job.capture_id == capture.id)
+    if idempotency_key is not None:
+        earlier = session.scalar(same.where(Job.idempotency_key == idempotency_key))
+    else:
+        earlier = next(
+            (
+                job
+                for job in session.scalars(same.where(Job.state.in_(("queued", "running"))))
+                if (job.config_overrides or None) == (overrides or None)
+            ),
+            None,
+        )
+    if earlier is not None:
+        return earlier, False
+    job = Job(capture_id=capture.id, config_overrides=overrides or None, idempotency_key=idempotency_key)
+    session.add(job)
+    session.flush()
+    return job, True
+
+
+def get_job(session: Session, job_id: int) -> Job:
+    """The job with this id, or a 404 problem."""
+    job = session.get(Job, job_id)
+    if job is None:
+        raise NotFound(f"no job with id {job_id}", job_id=job_id)
+    return job
+
+
+def job_out(session: Session, job: Job) -> JobOut:
+    """The job as the API shows it."""
+    measurement_id = session.scalar(select(Measurement.id).where(Measurement.job_id == job.id))
+    return _out(job, measurement_id)
+
+
+def _out(job: Job, measurement_id: int | None) -> JobOut:
+    return JobOut(
+        id=job.id,
+        capture_id=job.capture_id,
+        state=job.state,  # type: ignore[arg-type]
+        stage=job.stage,
+        progress=job.progress,
+        attempts=job.attempts,
+        created_at=job.created_at,
+        started_at=job.started_at,
+        finished_at=job.finished_at,
+        error=JobError.model_validate(job.error) if job.error else None,
+        measurement_id=measurement_id,
+    )
+
+
+def list_jobs(
+    session: Session, *, state: str | None, capture_id: int | None, cursor: str | None, limit: int
+) -> Page[JobOut]:
+    """Jobs oldest first, optionally of one state or capture."""
+    query = select(Job, Measurement.id).outerjoin(Measurement, Measurement.job_id == Job.id).order_by(Job.id)
+    after = decode_cursor(cursor)
+    if after is not None:
+        query = query.where(Job.id > after)
+    if state is not None:
+        query = query.where(Job.state == state)
+    if capture_id is not None:
+        query = query.where(Job.capture_id == capture_id)
+    rows = session.execute(query.limit(limit + 1)).all()
+    return page_of(
+        [_out(job, measurement_id) for job, measurement_id in rows], [job.id for job, _ in rows], limit
+    )

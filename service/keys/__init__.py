@@ -1,0 +1,1 @@
+"""API keys: prefixed random tokens with scopes, stored only as a hash."""

@@ -1,0 +1,52 @@
+"""HTTP routes of API keys (admin scope): create, list, revoke."""
+
+from __future__ import annotations
+
+from fastapi import APIRouter
+
+from service.deps import AdminKey, ContextDep
+from service.keys.schemas import KeyCreate, KeyCreated, KeyOut
+from service.keys.service import create_key, list_keys, revoke_key
+from service.models import ApiKey
+from service.problems import NotFound, problem_responses
+
+__all__ = ["key_out", "router"]
+
+router = APIRouter(prefix="/v1/keys", tags=["keys"])
+
+
+def key_out(record: ApiKey) -> KeyOut:
+    """A key record as the API and the CLI show it."""
+    return KeyOut(
+        id=record.id,
+        name=record.name,
+        prefix=record.prefix,
+        scopes=record.scopes.split(),
+        created_at=record.created_at,
+        revoked_at=record.revoked_at,
+    )
+
+
+@router.post("", response_model=KeyCreated, status_code=201)
+def create(body: KeyCreate, context: ContextDep, _key: AdminKey) -> KeyCreated:
+    """Create a key; the answer holds the key, shown this once."""
+    with context.database.writing() as session:
+        new = create_key(session, name=body.name, scopes=body.scopes)
+        return KeyCreated(**key_out(new.record).model_dump(), key=new.key)
+
+
+@router.get("", response_model=list[KeyOut])
+def index(context: ContextDep, _key: AdminKey) -> list[KeyOut]:
+    """Every key, revoked ones included."""
+    with context.database.reading() as session:
+        return [key_out(record) for record in list_keys(session)]
+
+
+@router.delete("/{prefix}", response_model=KeyOut, responses=problem_responses(NotFound))
+def revoke(prefix: str, context: ContextDep, _key: AdminKey) -> KeyOut:
+    """Revoke a key by its prefix; it stops working at once."""
+    with context.database.writing() as session:
+        record = revoke_key(session, prefix=prefix)
+        if record is None:
+            raise NotFound(f"no API key with prefix {prefix!r}", field="prefix")
+        return key_out(record)

@@ -1,0 +1,36 @@
+"""What the keys endpoints take and answer."""
+
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Literal
+
+from pydantic import BaseModel, Field
+
+__all__ = ["KeyCreate", "KeyCreated", "KeyOut"]
+
+Scope = Literal["capture", "read", "admin"]
+
+
+class KeyCreate(BaseModel):
+    """A key to create: a name for people, and its scopes."""
+
+    name: str = Field(min_length=1, max_length=200)
+    scopes: list[Scope] = Field(min_length=1)
+
+
+class KeyOut(BaseModel):
+    """A key as listed: never the key itself, which only its creator saw once."""
+
+    id: int
+    name: str
+    prefix: str
+    scopes: list[str]
+    created_at: datetime
+    revoked_at: datetime | None
+
+
+class KeyCreated(KeyOut):
+    """A key just created, with the key: store it now, it cannot be shown again."""
+
+    key: str

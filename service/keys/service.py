@@ -1,0 +1,80 @@
+"""Creating, listing, revoking and checking API keys.
+
+A key reads ``canopy_<prefix>_<secret>``: the prefix (8 hex digits) names the key in lists and logs, the
+secret is 256 random bits. Only the SHA-256 of the whole key is stored; a fast hash suffices because the
+key is random, not a password someone chose.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import secrets
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+from service.models import ApiKey, utc_now
+
+__all__ = ["SCOPES", "NewKey", "authenticate", "create_key", "grants", "list_keys", "revoke_key"]
+
+SCOPES = ("capture", "read", "admin")
+"""``capture``: create captures, upload files, start jobs. ``read``: every GET. ``admin``: everything."""
+
+
+@dataclass(frozen=True)
+class NewKey:
+    """A key just created: the record and the key itself, which is shown this once and never again."""
+
+    record: ApiKey
+    key: str
+
+
+def _digest(key: str) -> str:
+    return hashlib.sha256(key.encode()).hexdigest()
+
+
+def create_key(session: Session, *, name: str, scopes: Sequence[str]) -> NewKey:
+    """Create a key with the given scopes (each one of :data:`SCOPES`)."""
+    unknown = sorted(set(scopes) - set(SCOPES))
+    if unknown or not scopes:
+        raise ValueError(f"scopes must be among {', '.join(SCOPES)}; got {', '.join(scopes) or 'none'}")
+    prefix = secrets.token_hex(4)
+    key = f"canopy_{prefix}_{secrets.token_urlsafe(32)}"
+    record = ApiKey(
+        name=name,
+        prefix=prefix,
+        key_sha256=_digest(key),
+        scopes=" ".join(sorted(set(scopes), key=SCOPES.index)),
+    )
+    session.add(record)
+    session.flush()
+    return NewKey(record=record, key=key)
+
+
+def list_keys(session: Session) -> list[ApiKey]:
+    """Every key, revoked ones included, oldest first."""
+    return list(session.scalars(select(ApiKey).order_by(ApiKey.id)))
+
+
+def revoke_key(session: Session, *, prefix: str) -> ApiKey | None:
+    """Revoke the key with this prefix; None when there is none. Revoking twice keeps the first time."""
+    record = session.scalar(select(ApiKey).where(ApiKey.prefix == prefix))
+    if record is not None and record.revoked_at is None:
+        record.revoked_at = utc_now()
+    return record
+
+
+def authenticate(session: Session, key: str) -> ApiKey | None:
+    """The live (not revoked) key record matching ``key``, or None."""
+    record = session.scalar(select(ApiKey).where(ApiKey.key_sha256 == _digest(key)))
+    if record is None or record.revoked_at is not None:
+        return None
+    return record
+
+
+def grants(record: ApiKey, scope: str) -> bool:
+    """True when the key may act in ``scope``; ``admin`` may do everything."""
+    held = record.scopes.split()
+    return scope in held or "admin" in held

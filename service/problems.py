@@ -1,0 +1,153 @@
+"""RFC 9457 problem details: the one error base of the API, its subclasses, and the handlers that render
+every error (ours, the measurement core's, FastAPI's validation and Starlette's routing) as
+``application/problem+json`` naming the field, file or view at fault.
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+from starlette.exceptions import HTTPException as StarletteHTTPException
+
+from canopy_core.errors import CanopyError
+
+__all__ = [
+    "PROBLEM_JSON",
+    "ApiError",
+    "BadRequest",
+    "Conflict",
+    "Forbidden",
+    "InvalidContent",
+    "NotFound",
+    "PayloadTooLarge",
+    "Unauthorized",
+    "install_problem_handlers",
+    "problem_responses",
+]
+
+PROBLEM_JSON = "application/problem+json"
+
+
+class ApiError(Exception):
+    """An error answered as problem+json with ``status``; ``code`` is the stable, machine-readable kind.
+
+    Locations (``field``, ``file``, ``view``) and any other keyword arguments become members of the
+    problem object, so clients never parse ``detail``.
+    """
+
+    status: ClassVar[int] = 500
+    title: ClassVar[str] = "Internal error"
+    code: ClassVar[str] = "internal_error"
+
+    def __init__(self, detail: str, *, code: str | None = None, **members: Any) -> None:
+        super().__init__(detail)
+        self.detail = detail
+        self.instance_code = code or self.code
+        self.members = {key: value for key, value in members.items() if value is not None}
+        self.headers: dict[str, str] = {}
+
+
+class BadRequest(ApiError):
+    status, title, code = 400, "Bad request", "bad_request"
+
+
+class Unauthorized(ApiError):
+    status, title, code = 401, "Missing or invalid API key", "unauthorized"
+
+    def __init__(self, detail: str) -> None:
+        super().__init__(detail)
+        self.headers = {"WWW-Authenticate": 'Bearer realm="canopy"'}
+
+
+class Forbidden(ApiError):
+    status, title, code = 403, "API key lacks the scope", "forbidden"
+
+
+class NotFound(ApiError):
+    status, title, code = 404, "Not found", "not_found"
+
+
+class Conflict(ApiError):
+    status, title, code = 409, "Conflict", "conflict"
+
+
+class PayloadTooLarge(ApiError):
+    status, title, code = 413, "Body too large", "body_too_large"
+
+
+class InvalidContent(ApiError):
+    status, title, code = 422, "Invalid content", "invalid_content"
+
+
+def problem_responses(
+    *errors: type[ApiError], also: dict[int, dict[str, Any]] | None = None
+) -> dict[int | str, dict[str, Any]]:
+    """OpenAPI ``responses=`` entries for the errors a route can answer with, plus ``also``."""
+    responses: dict[int | str, dict[str, Any]] = {**(also or {})}
+    for error in errors:
+        responses[error.status] = {
+            "description": error.title,
+            "content": {PROBLEM_JSON: {"schema": {"type": "object"}}},
+        }
+    return responses
+
+
+def problem(
+    status: int, title: str, detail: str, *, code: str, headers: dict[str, str] | None = None, **members: Any
+) -> JSONResponse:
+    """A problem+json response; ``type`` is a relative URI per problem code, documented in docs/api.md."""
+    body = {"type": f"/problems/{code}", "title": title, "status": status, "detail": detail, "code": code}
+    body.update(members)
+    return JSONResponse(body, status_code=status, media_type=PROBLEM_JSON, headers=headers)
+
+
+def _api_error(_request: Request, exc: Exception) -> JSONResponse:
+    assert isinstance(exc, ApiError)
+    return problem(
+        exc.status, exc.title, exc.detail, code=exc.instance_code, headers=exc.headers, **exc.members
+    )
+
+
+def _canopy_error(_request: Request, exc: Exception) -> JSONResponse:
+    # The core's errors that reach a request are about the content sent (capture.json, camera.json,
+    # an image, the settings): the client must change what it sends.
+    assert isinstance(exc, CanopyError)
+    members: dict[str, Any] = {
+        key: value for key, value in exc.to_dict().items() if key not in {"code", "message"}
+    }
+    return problem(422, "Invalid content", exc.message, code=exc.code, **members)
+
+
+def _validation_error(_request: Request, exc: Exception) -> JSONResponse:
+    assert isinstance(exc, RequestValidationError)
+    errors = exc.errors()
+    first = errors[0]
+    location = [str(part) for part in first["loc"]]
+    where = location[0] if location else "body"
+    field = ".".join(location[1:]) or where
+    detail = f"{field}: {first['msg']}"
+    if len(errors) > 1:
+        detail += f" ({len(errors) - 1} more problem(s))"
+    return problem(422, "Invalid request", detail, code="invalid_request", field=field, where=where)
+
+
+def _http_error(_request: Request, exc: Exception) -> JSONResponse:
+    assert isinstance(exc, StarletteHTTPException)
+    return problem(
+        exc.status_code,
+        str(exc.detail),
+        str(exc.detail),
+        code="not_found" if exc.status_code == 404 else "http_error",
+        headers=dict(exc.headers or {}),
+    )
+
+
+def install_problem_handlers(app: FastAPI) -> None:
+    """Render every error the app can raise as problem+json."""
+    app.add_exception_handler(ApiError, _api_error)
+    app.add_exception_handler(CanopyError, _canopy_error)
+    app.add_exception_handler(RequestValidationError, _validation_error)
+    app.add_exception_handler(StarletteHTTPException, _http_error)

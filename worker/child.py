@@ -1,0 +1,78 @@
+"""The measurement of one job, run in a child process so that a crash or an out-of-memory kill of the
+measurement becomes an ordinary, retried failure of the job rather than the death of the worker.
+
+The child reads the capture's files from the blob store, measures, stores the fused cloud and sends its
+messages to the worker through a pipe: ``("progress", stage, fraction)`` while it runs, then one of
+``("ok", document, cloud_sha256, cloud_points)``, ``("error", error_dict)`` for a failure the measurement
+core explains (permanent), or ``("crash", text)`` for an unexpected exception (retried).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import json
+import signal
+import sys
+import traceback
+from dataclasses import dataclass
+from multiprocessing.connection import Connection
+from pathlib import Path
+from typing import Any
+
+from canopy_core.capture import CaptureManifest, read_capture
+from canopy_core.cloud_io import ply_bytes
+from canopy_core.errors import CanopyError
+from canopy_core.measure import measure
+from service.storage import BlobStore
+
+__all__ = ["MeasurementSpec", "run_measurement"]
+
+_PR_SET_PDEATHSIG = 1
+
+
+@dataclass(frozen=True)
+class MeasurementSpec:
+    """Everything the child needs, picklable: the manifest, each file's blob digest, the settings."""
+
+    job_id: int
+    manifest: dict[str, Any]
+    files: dict[str, str]
+    blob_dir: Path
+    overrides: dict[str, Any] | None
+    max_pixels: int
+
+
+def _die_with_parent() -> None:
+    # A worker killed with SIGKILL cannot stop its child; the kernel does, so that no orphan keeps
+    # measuring a job that another worker will run again.
+    if sys.platform.startswith("linux"):
+        ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGKILL)
+
+
+def run_measurement(connection: Connection, spec: MeasurementSpec) -> None:
+    """Measure the job's capture and send the outcome through ``connection`` (see the module docstring)."""
+    _die_with_parent()
+    store = BlobStore(spec.blob_dir)
+
+    def read(path: str) -> bytes | None:
+        digest = spec.files.get(path)
+        return None if digest is None else store.read(digest)
+
+    def progress(stage: str, fraction: float) -> None:
+        connection.send(("progress", stage, fraction))
+
+    try:
+        progress("load", 0.0)
+        capture = read_capture(
+            CaptureManifest.model_validate(spec.manifest), read, max_pixels=spec.max_pixels
+        )
+        result = measure(capture, overrides=spec.overrides, progress=progress)
+        cloud_sha256 = store.put(ply_bytes(result.cloud_points_m, result.cloud_colors_rgb))
+        document = json.loads(result.to_json())
+        connection.send(("ok", document, cloud_sha256, int(result.cloud_points_m.shape[0])))
+    except CanopyError as exc:
+        connection.send(("error", exc.to_dict()))
+    except Exception:
+        connection.send(("crash", traceback.format_exc(limit=8)))
+    finally:
+        connection.close()

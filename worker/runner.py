@@ -1,0 +1,182 @@
+"""The worker loop: claim a job, run its measurement in a child process, keep the lease alive while it
+runs, and record the outcome only while still holding the lease.
+"""
+
+from __future__ import annotations
+
+import logging
+import multiprocessing
+import os
+import socket
+import threading
+import time
+import uuid
+from dataclasses import dataclass
+from multiprocessing.connection import Connection
+from multiprocessing.process import BaseProcess
+from typing import Any
+
+from sqlalchemy import select
+
+from service.captures.service import get_capture
+from service.context import Context
+from service.jobs.queue import Lease, claim, complete, fail, release, renew
+from service.models import CaptureFile
+from worker.child import MeasurementSpec, run_measurement
+
+__all__ = ["Worker"]
+
+log = logging.getLogger("canopy.worker")
+
+
+@dataclass(frozen=True)
+class _Outcome:
+    kind: str  # "ok", "error", "crash" or "lost"
+    message: tuple[Any, ...] = ()
+
+
+class Worker:
+    """Runs jobs one after another until :meth:`stop` is called.
+
+    Parameters
+    ----------
+    context
+        The service's settings, database and blob store.
+    name
+        Names this worker in leases and logs; unique per process by default.
+    """
+
+    def __init__(self, context: Context, *, name: str | None = None) -> None:
+        self.context = context
+        self.owner = name or f"{socket.gethostname()}:{os.getpid()}:{uuid.uuid4().hex[:6]}"
+        self._stopping = threading.Event()
+        # A fork server that has imported the measurement core starts each job's process in milliseconds,
+        # without inheriting this process's database connections.
+        self._processes = multiprocessing.get_context("forkserver")
+        self._processes.set_forkserver_preload(["worker.child"])
+
+    def stop(self) -> None:
+        """Finish soon: a running job is handed back to the queue, and no new job is claimed."""
+        self._stopping.set()
+
+    def run_forever(self) -> None:
+        """Claim and run jobs until stopped, waiting ``worker_poll_s`` whenever the queue is empty."""
+        log.info("worker %s waiting for jobs", self.owner)
+        while not self._stopping.is_set():
+            if not self.run_one():
+                self._stopping.wait(self.context.settings.worker_poll_s)
+
+    def run_one(self) -> bool:
+        """Claim and run one job; False when none was ready."""
+        settings = self.context.settings
+        with self.context.database.writing() as session:
+            lease = claim(
+                session,
+                owner=self.owner,
+                lease_s=settings.job_lease_s,
+                max_attempts=settings.job_max_attempts,
+            )
+        if lease is None:
+            return False
+        log.info("job %d: attempt %d started", lease.job_id, lease.attempt)
+        started = time.monotonic()
+        outcome = self._run(lease)
+        self._record(lease, outcome)
+        log.info("job %d: %s after %.2f s", lease.job_id, outcome.kind, time.monotonic() - started)
+        return True
+
+    def _spec(self, lease: Lease) -> MeasurementSpec:
+        with self.context.database.reading() as session:
+            capture = get_capture(session, lease.capture_id)
+            files = {
+                record.path: record.sha256
+                for record in session.scalars(
+                    select(CaptureFile).where(CaptureFile.capture_id == lease.capture_id)
+                )
+            }
+            return MeasurementSpec(
+                job_id=lease.job_id,
+                manifest=capture.manifest,
+                files=files,
+                blob_dir=self.context.store.root,
+                overrides=lease.overrides,
+                max_pixels=self.context.settings.max_image_pixels,
+            )
+
+    def _renew(self, lease: Lease, *, stage: str | None = None, progress: float | None = None) -> bool:
+        with self.context.database.writing() as session:
+            return renew(
+                session, lease, lease_s=self.context.settings.job_lease_s, stage=stage, progress=progress
+            )
+
+    def _run(self, lease: Lease) -> _Outcome:
+        receiver, sender = self._processes.Pipe(duplex=False)
+        process = self._processes.Process(
+            target=run_measurement,
+            args=(sender, self._spec(lease)),
+            name=f"canopy-job-{lease.job_id}",
+            daemon=True,
+        )
+        process.start()
+        sender.close()
+        try:
+            return self._supervise(lease, process, receiver)
+        finally:
+            receiver.close()
+            if process.is_alive():
+                process.kill()
+            process.join()
+
+    def _supervise(self, lease: Lease, process: BaseProcess, receiver: Connection) -> _Outcome:
+        heartbeat_s = self.context.settings.job_heartbeat_s
+        next_heartbeat = time.monotonic() + heartbeat_s
+        while True:
+            if self._stopping.is_set():
+                return _Outcome("stopped")
+            if receiver.poll(min(max(next_heartbeat - time.monotonic(), 0.0), 0.5)):
+                try:
+                    message = receiver.recv()
+                except EOFError:
+                    process.join(5)
+                    return _Outcome("crash", (_exit_description(process.exitcode),))
+                if message[0] != "progress":
+                    return _Outcome(message[0], tuple(message[1:]))
+                _, stage, fraction = message
+                if not self._renew(lease, stage=stage, progress=fraction):
+                    return _Outcome("lost")
+                next_heartbeat = time.monotonic() + heartbeat_s
+            elif time.monotonic() >= next_heartbeat:
+                if not self._renew(lease):
+                    return _Outcome("lost")
+                next_heartbeat = time.monotonic() + heartbeat_s
+
+    def _record(self, lease: Lease, outcome: _Outcome) -> None:
+        settings = self.context.settings
+        with self.context.database.writing() as session:
+            if outcome.kind == "ok":
+                document, cloud_sha256, cloud_points = outcome.message
+                held = (
+                    complete(
+                        session, lease, result=document, cloud_sha256=cloud_sha256, cloud_points=cloud_points
+                    )
+                    is not None
+                )
+            elif outcome.kind == "error":
+                held = fail(session, lease, error=outcome.message[0], retry=False, max_attempts=1)
+            elif outcome.kind == "crash":
+                error = {"code": "measurement_crashed", "message": outcome.message[0]}
+                held = fail(session, lease, error=error, retry=True, max_attempts=settings.job_max_attempts)
+            elif outcome.kind == "stopped":
+                held = release(session, lease)
+            else:
+                held = False
+        if not held:
+            log.warning("job %d: lease lost to another worker; its outcome here is dropped", lease.job_id)
+
+
+def _exit_description(exitcode: int | None) -> str:
+    if exitcode is not None and exitcode < 0:
+        return f"the measurement process was killed by signal {-exitcode}" + (
+            " (out of memory?)" if -exitcode == 9 else ""
+        )
+    return f"the measurement process ended with exit code {exitcode} before reporting a result"
