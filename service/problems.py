@@ -83,7 +83,7 @@ class InvalidContent(ApiError):
 
 
 def problem_responses(
-    *errors: type[ApiError], also: dict[int, dict[str, Any]] | None = None
+    *errors: type[ApiError], also: dict[int | str, dict[str, Any]] | None = None
 ) -> dict[int | str, dict[str, Any]]:
     """OpenAPI ``responses=`` entries for the errors a route can answer with, plus ``also``."""
     responses: dict[int | str, dict[str, Any]] = {**(also or {})}

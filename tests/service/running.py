@@ -1,0 +1,157 @@
+"""Real service processes for the tests: `canopy serve` and `canopy worker` on a temporary data folder.
+
+Nothing is mocked: the server is uvicorn in its own process, workers are their own processes, the database
+is a SQLite file, and the tests talk HTTP.
+"""
+
+from __future__ import annotations
+
+import base64
+import hashlib
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import httpx
+
+CANOPY = str(Path(sys.executable).parent / "canopy")
+START_TIMEOUT_S = 60.0
+
+
+def free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return int(probe.getsockname()[1])
+
+
+def content_digest(data: bytes) -> str:
+    """The RFC 9530 Content-Digest header value of ``data``."""
+    return f"sha-256=:{base64.b64encode(hashlib.sha256(data).digest()).decode()}:"
+
+
+@dataclass
+class Service:
+    """A running `canopy serve` with an admin key, and the workers a test starts beside it."""
+
+    data_dir: Path
+    environment: dict[str, str]
+    url: str
+    admin_key: str
+    server: subprocess.Popen[bytes]
+    workers: list[subprocess.Popen[bytes]] = field(default_factory=list)
+
+    def client(self, key: str | None = None) -> httpx.Client:
+        """An HTTP client with ``key`` (default: the admin key) as bearer token."""
+        headers = {"Authorization": f"Bearer {key or self.admin_key}"}
+        return httpx.Client(base_url=self.url, headers=headers, timeout=30.0)
+
+    def canopy(self, *args: str) -> subprocess.CompletedProcess[str]:
+        """Run a `canopy` command with this service's settings."""
+        return subprocess.run(
+            [CANOPY, *args], env=self.environment, capture_output=True, text=True, timeout=120, check=False
+        )
+
+    def create_key(self, *scopes: str) -> str:
+        """A new key with these scopes, made by `canopy keys create` (its last line is the key)."""
+        arguments = [part for scope in scopes for part in ("--scope", scope)]
+        done = self.canopy("keys", "create", *arguments)
+        assert done.returncode == 0, done.stderr
+        return done.stdout.strip().splitlines()[-1]
+
+    def start_worker(self) -> subprocess.Popen[bytes]:
+        """Start a `canopy worker` process; it is stopped when the test ends."""
+        log = (self.data_dir / f"worker-{len(self.workers)}.log").open("wb")
+        process = subprocess.Popen([CANOPY, "worker"], env=self.environment, stdout=log, stderr=log)
+        self.workers.append(process)
+        return process
+
+    def stop(self) -> None:
+        for process in [*self.workers, self.server]:
+            if process.poll() is None:
+                process.send_signal(signal.SIGTERM)
+        for process in [*self.workers, self.server]:
+            try:
+                process.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                process.kill()
+                process.wait()
+
+
+def start_service(root: Path, **settings: str) -> Service:
+    """Start `canopy serve` on a fresh data folder under ``root`` (settings as CANOPY_<NAME> values)."""
+    data_dir = root / "data"
+    environment = {
+        **os.environ,
+        "CANOPY_DATA_DIR": str(data_dir),
+        "CANOPY_WORKER_POLL_S": "0.1",
+        **{f"CANOPY_{name.upper()}": value for name, value in settings.items()},
+    }
+    environment.pop("CANOPY_DATABASE_URL", None)
+    keys = subprocess.run(
+        [CANOPY, "keys", "create", "--scope", "admin", "--name", "tests"],
+        env=environment,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=True,
+    )
+    admin_key = keys.stdout.strip().splitlines()[-1]
+    port = free_port()
+    log = (data_dir / "server.log").open("wb")
+    server = subprocess.Popen([CANOPY, "serve", "--port", str(port)], env=environment, stdout=log, stderr=log)
+    service = Service(data_dir, environment, f"http://127.0.0.1:{port}", admin_key, server)
+    deadline = time.monotonic() + START_TIMEOUT_S
+    while True:
+        try:
+            if httpx.get(f"{service.url}/healthz", timeout=1.0).status_code == 200:
+                return service
+        except httpx.TransportError:
+            pass
+        if server.poll() is not None or time.monotonic() > deadline:
+            service.stop()
+            raise RuntimeError(f"canopy serve did not start: {(data_dir / 'server.log').read_text()}")
+        time.sleep(0.1)
+
+
+CAPTURE_FILES = ("camera.json", "depth.png", "color.png", "color.jpg")
+
+
+def capture_files(folder: Path) -> dict[str, bytes]:
+    """The files of a capture folder to upload, by their path in it (not capture.json or ground truth)."""
+    return {
+        path.relative_to(folder).as_posix(): path.read_bytes()
+        for path in sorted(folder.glob("views/*/*"))
+        if path.name in CAPTURE_FILES
+    }
+
+
+def upload_capture(client: httpx.Client, folder: Path) -> int:
+    """Create the capture of ``folder`` and upload every file; the capture's id."""
+    created = client.post("/v1/captures", content=(folder / "capture.json").read_bytes())
+    assert created.status_code in (200, 201), created.text
+    capture_id = int(created.json()["id"])
+    for path, data in capture_files(folder).items():
+        sent = client.put(
+            f"/v1/captures/{capture_id}/files/{path}",
+            content=data,
+            headers={"Content-Digest": content_digest(data)},
+        )
+        assert sent.status_code in (200, 201), sent.text
+    return capture_id
+
+
+def wait_for_job(client: httpx.Client, job_url: str, *, timeout_s: float = 120.0) -> dict[str, Any]:
+    """Poll a job until it succeeds or fails; its last state."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        job = client.get(job_url).json()
+        if job["state"] in ("succeeded", "failed"):
+            return dict(job)
+        time.sleep(0.1)
+    raise AssertionError(f"job {job_url} did not finish in {timeout_s} s: {job}")
