@@ -1,0 +1,145 @@
+"""End to end: a simulated two-view capture uploaded over HTTP to a real server, measured by a real worker
+process, and read back as the farm management system would (JSON, CSV, the fused cloud)."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from canopy_core.cloud_io import read_ply
+from canopy_core.measure import measure
+from tests.service.running import Service, start_service, upload_capture, wait_for_job
+
+RELATIVE_TOLERANCE = 0.03
+"""The paper's merged-view errors are 2.5-3.6 %; this capture measures well inside 3 %."""
+
+
+@pytest.fixture(scope="module")
+def service(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Service]:
+    """One server and one worker for the module: the capture is uploaded and measured once."""
+    running = start_service(tmp_path_factory.mktemp("end-to-end"))
+    yield running
+    running.stop()
+
+
+@pytest.fixture(scope="module")
+def measured(service: Service, tree_capture: Path) -> dict[str, object]:
+    """The capture uploaded, its job run by a worker to success: the job and the measurement."""
+    service.start_worker()
+    with service.client() as client:
+        capture_id = upload_capture(client, tree_capture)
+        started = client.post(f"/v1/captures/{capture_id}/jobs")
+        assert started.status_code == 202, started.text
+        assert started.headers["location"] == f"/v1/jobs/{started.json()['id']}"
+        job = wait_for_job(client, started.headers["location"])
+        assert job["state"] == "succeeded", job
+        measurement = client.get(f"/v1/measurements/{job['measurement_id']}").json()
+    return {"capture_id": capture_id, "job": job, "measurement": measurement}
+
+
+def test_uploaded_capture_is_measured_within_tolerance_of_ground_truth(
+    measured: dict[str, object], tree_capture: Path
+) -> None:
+    truth = json.loads((tree_capture / "ground_truth.json").read_text())
+    measurement = measured["measurement"]
+    assert isinstance(measurement, dict)
+    for key in ("height_m", "width_m", "thickness_m"):
+        assert measurement[key] == pytest.approx(truth[key], rel=RELATIVE_TOLERANCE), key
+    assert set(measurement["modes"]) == {"views/1", "views/2", "merged"}
+    assert set(measurement["registration"]["views"]) == {"views/1", "views/2"}
+
+
+def test_service_measures_exactly_what_the_offline_command_measures(
+    measured: dict[str, object], tree_capture: Path
+) -> None:
+    offline = measure(tree_capture).to_dict()
+    measurement = measured["measurement"]
+    assert isinstance(measurement, dict)
+    for key in ("height_m", "width_m", "thickness_m", "crown_base_m", "volume_hull_m3"):
+        assert measurement[key] == pytest.approx(offline[key], abs=1e-9), key
+
+
+def test_job_reports_finished_state(measured: dict[str, object]) -> None:
+    job = measured["job"]
+    assert isinstance(job, dict)
+    assert job["stage"] == "done"
+    assert job["progress"] == 1.0
+    assert job["attempts"] == 1
+    assert job["error"] is None
+    assert job["started_at"] <= job["finished_at"]
+
+
+def test_csv_export_of_the_row_holds_the_measurement(service: Service, measured: dict[str, object]) -> None:
+    measurement = measured["measurement"]
+    assert isinstance(measurement, dict)
+    identity = measurement["capture"]
+    with service.client() as client:
+        export = client.get(
+            "/v1/measurements.csv", params={"orchard": identity["orchard"], "row": identity["row"]}
+        )
+        elsewhere = client.get("/v1/measurements.csv", params={"orchard": "No such orchard"})
+    assert export.status_code == 200
+    assert export.headers["content-type"].startswith("text/csv")
+    [line] = list(csv.DictReader(io.StringIO(export.text)))
+    assert line["tree"] == identity["tree"]
+    assert int(line["measurement_id"]) == measurement["id"]
+    for key in ("height_m", "width_m", "thickness_m"):
+        assert float(line[key]) == pytest.approx(measurement[key], abs=1e-12)
+    assert list(csv.reader(io.StringIO(elsewhere.text)))[1:] == []
+
+
+def test_fused_cloud_downloads_as_binary_ply(
+    service: Service, measured: dict[str, object], tmp_path: Path
+) -> None:
+    measurement = measured["measurement"]
+    assert isinstance(measurement, dict)
+    with service.client() as client:
+        cloud = client.get(measurement["cloud"]["href"])
+    assert cloud.status_code == 200
+    assert cloud.content.startswith(b"ply\nformat binary_little_endian 1.0\n")
+    (tmp_path / "cloud.ply").write_bytes(cloud.content)
+    points, colors = read_ply(tmp_path / "cloud.ply")
+    assert points.shape == (measurement["cloud"]["points"], 3)
+    assert colors is not None
+    height_above_ground = points[:, 2].max()
+    assert height_above_ground == pytest.approx(measurement["height_m"], abs=0.1)
+    assert np.isfinite(points).all()
+
+
+def test_farm_system_walks_from_orchard_to_tree_measurements(
+    service: Service, measured: dict[str, object]
+) -> None:
+    measurement = measured["measurement"]
+    assert isinstance(measurement, dict)
+    with service.client() as client:
+        [orchard] = client.get("/v1/orchards").json()["items"]
+        [row] = client.get(f"/v1/orchards/{orchard['id']}/rows").json()["items"]
+        [tree] = client.get(f"/v1/rows/{row['id']}/trees").json()["items"]
+        history = client.get(f"/v1/trees/{tree['id']}/measurements").json()
+    assert (orchard["name"], row["name"], tree["name"]) == (
+        measurement["capture"]["orchard"],
+        measurement["capture"]["row"],
+        measurement["capture"]["tree"],
+    )
+    assert tree["latest_measurement"]["id"] == measurement["id"]
+    assert [item["id"] for item in history["items"]] == [measurement["id"]]
+    assert history["next_cursor"] is None
+
+
+def test_job_status_answers_304_while_unchanged(service: Service, measured: dict[str, object]) -> None:
+    job = measured["job"]
+    assert isinstance(job, dict)
+    with service.client() as client:
+        first = client.get(f"/v1/jobs/{job['id']}")
+        again = client.get(f"/v1/jobs/{job['id']}", headers={"If-None-Match": first.headers["etag"]})
+        stale = client.get(f"/v1/jobs/{job['id']}", headers={"If-None-Match": '"something-else"'})
+    assert again.status_code == 304
+    assert again.content == b""
+    assert stale.status_code == 200
+    assert stale.headers["etag"] == first.headers["etag"]
