@@ -6,7 +6,7 @@ set -euo pipefail
 cd "$(dirname "$0")"
 
 VENV=${CANOPY_VENV:-.venv}
-APT_PACKAGES=(libusb-1.0-0 libgl1 libgomp1)
+APT_PACKAGES=(libusb-1.0-0 libgl1 libgomp1 curl openssl)
 PYTHON=${PYTHON:-python3}
 
 as_root() { if [ "$(id -u)" -eq 0 ]; then "$@"; else sudo "$@"; fi; }
@@ -36,17 +36,61 @@ python_environment() {
 
 setup() { system_libraries; python_environment; }
 
+# Send one capture folder to the service with curl, as capture software would: create the capture, PUT each
+# file with its SHA-256 (RFC 9530 Content-Digest), start the job. Prints the job's address.
+send_capture() {
+    local server=$1 key=$2 folder=$3 capture file digest
+    capture=$(curl -sf -H "Authorization: Bearer $key" -H "Content-Type: application/json" \
+        --data-binary "@$folder/capture.json" "$server/v1/captures" | sed -E 's/^\{"id":([0-9]+).*/\1/')
+    for file in "$folder"/views/*/*; do
+        digest=$(openssl dgst -sha256 -binary "$file" | base64)
+        curl -sf -o /dev/null -X PUT -H "Authorization: Bearer $key" -H "Content-Digest: sha-256=:$digest:" \
+            --data-binary "@$file" "$server/v1/captures/$capture/files/${file#"$folder"/}"
+    done
+    curl -sf -D - -o /dev/null -X POST -H "Authorization: Bearer $key" "$server/v1/captures/$capture/jobs" \
+        | tr -d '\r' | sed -n 's/^[Ll]ocation: //p'
+}
+
 case "${1:-}" in
     run)
         setup
-        # The main job on the embedded default: simulate one two-view capture, then measure it.
-        out=${CANOPY_DATA_DIR:-./canopy-data}/demo
-        rm -rf "$out"
-        "$VENV/bin/canopy" simulate "$out" --seed 7 --count 1 >/dev/null
-        "$VENV/bin/canopy" measure "$out/tree_000" --cloud "$out/tree_000.ply"
-        echo "ground truth: $(cat "$out/tree_000/ground_truth.json" | "$VENV/bin/python" -c \
-            'import json,sys; g=json.load(sys.stdin); print("H %.3f  W %.3f  D %.3f m" % (g["height_m"], g["width_m"], g["thickness_m"]))')"
-        echo "fused cloud: $out/tree_000.ply"
+        # The main job on the embedded default: `canopy up` (API and one worker on SQLite in the data
+        # folder), a simulated two-view capture sent to it with curl, its measurement printed.
+        export CANOPY_DATA_DIR=${CANOPY_DATA_DIR:-./canopy-data}
+        port=${CANOPY_PORT:-8000}
+        server="http://127.0.0.1:$port"
+        demo="$CANOPY_DATA_DIR/demo"
+        rm -rf "$demo"
+        "$VENV/bin/canopy" simulate "$demo" --seed 7 --count 1 >/dev/null
+        "$VENV/bin/canopy" up --port "$port" &
+        up_pid=$!
+        trap 'kill $up_pid 2>/dev/null; wait $up_pid 2>/dev/null' EXIT
+        until curl -sf "$server/healthz" >/dev/null; do
+            kill -0 $up_pid 2>/dev/null || { echo "canopy up did not start" >&2; exit 1; }
+            sleep 0.2
+        done
+        key=$("$VENV/bin/canopy" keys create --scope capture --scope read --name dev.sh-run 2>/dev/null | tail -1)
+        job=$(send_capture "$server" "$key" "$demo/tree_000")
+        echo "measurement job: $server$job"
+        until curl -sf -H "Authorization: Bearer $key" "$server$job" | grep -qE '"state":"(succeeded|failed)"'; do
+            sleep 0.2
+        done
+        curl -sf -H "Authorization: Bearer $key" "$server$job" | "$VENV/bin/python" -c "$(cat <<'PY'
+import json, sys, urllib.request
+job = json.load(sys.stdin)
+if job["state"] != "succeeded":
+    sys.exit(f"job failed: {job['error']}")
+request = urllib.request.Request(f"{sys.argv[1]}/v1/measurements/{job['measurement_id']}",
+                                 headers={"Authorization": f"Bearer {sys.argv[2]}"})
+measured = json.load(urllib.request.urlopen(request))
+truth = json.load(open(sys.argv[3]))
+print("measured:     H %.3f  W %.3f  D %.3f m" % (measured["height_m"], measured["width_m"], measured["thickness_m"]))
+print("ground truth: H %.3f  W %.3f  D %.3f m" % (truth["height_m"], truth["width_m"], truth["thickness_m"]))
+print(f"fused cloud:  {sys.argv[1]}/v1/measurements/{job['measurement_id']}/cloud.ply")
+PY
+)" "$server" "$key" "$demo/tree_000/ground_truth.json"
+        echo "The service keeps running at $server (API docs: $server/docs); Ctrl-C stops it."
+        wait $up_pid
         ;;
     test)
         setup

@@ -12,6 +12,7 @@ import threading
 import time
 import uuid
 from dataclasses import dataclass
+from multiprocessing import forkserver
 from multiprocessing.connection import Connection
 from multiprocessing.process import BaseProcess
 from typing import Any
@@ -29,9 +30,18 @@ __all__ = ["Worker"]
 log = logging.getLogger("canopy.worker")
 
 
+_OUTCOME_LOG = {
+    "ok": "succeeded",
+    "error": "failed (the measurement explains why)",
+    "crash": "crashed (retried while attempts remain)",
+    "stopped": "handed back to the queue (worker stopping)",
+    "lost": "abandoned (lease lost)",
+}
+
+
 @dataclass(frozen=True)
 class _Outcome:
-    kind: str  # "ok", "error", "crash" or "lost"
+    kind: str  # a key of _OUTCOME_LOG
     message: tuple[Any, ...] = ()
 
 
@@ -54,6 +64,7 @@ class Worker:
         # without inheriting this process's database connections.
         self._processes = multiprocessing.get_context("forkserver")
         self._processes.set_forkserver_preload(["worker.child"])
+        forkserver.ensure_running()  # now, so the first job does not wait for the imports
 
     def stop(self) -> None:
         """Finish soon: a running job is handed back to the queue, and no new job is claimed."""
@@ -82,7 +93,9 @@ class Worker:
         started = time.monotonic()
         outcome = self._run(lease)
         self._record(lease, outcome)
-        log.info("job %d: %s after %.2f s", lease.job_id, outcome.kind, time.monotonic() - started)
+        log.info(
+            "job %d: %s after %.2f s", lease.job_id, _OUTCOME_LOG[outcome.kind], time.monotonic() - started
+        )
         return True
 
     def _spec(self, lease: Lease) -> MeasurementSpec:
