@@ -65,10 +65,16 @@ class Service:
         return done.stdout.strip().splitlines()[-1]
 
     def start_worker(self) -> subprocess.Popen[bytes]:
-        """Start a `canopy worker` process; it is stopped when the test ends."""
-        log = (self.data_dir / f"worker-{len(self.workers)}.log").open("wb")
-        process = subprocess.Popen([CANOPY, "worker"], env=self.environment, stdout=log, stderr=log)
+        """Start a `canopy worker` process and wait until it takes jobs; it is stopped with the service."""
+        log_path = self.data_dir / f"worker-{len(self.workers)}.log"
+        with log_path.open("wb") as log:
+            process = subprocess.Popen([CANOPY, "worker"], env=self.environment, stdout=log, stderr=log)
         self.workers.append(process)
+        deadline = time.monotonic() + START_TIMEOUT_S
+        while b"waiting for jobs" not in log_path.read_bytes():
+            if process.poll() is not None or time.monotonic() > deadline:
+                raise RuntimeError(f"canopy worker did not start: {log_path.read_text()}")
+            time.sleep(0.05)
         return process
 
     def stop(self) -> None:
