@@ -1,0 +1,136 @@
+"""The service's commands: `canopy up` (the embedded default), `canopy keys`, migrations."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import httpx
+from alembic.autogenerate import compare_metadata
+from alembic.migration import MigrationContext
+
+from service.database import Database
+from service.migrate import is_current, upgrade
+from service.models import Base
+from tests.service.running import CANOPY, Service, free_port
+
+
+def _start_up(data_dir: Path, port: int) -> tuple[subprocess.Popen[str], list[str]]:
+    """Start `canopy up` and read its output until the API answers; the process and the lines read."""
+    process = subprocess.Popen(
+        [CANOPY, "up", "--port", str(port), "--data", str(data_dir)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env={**os.environ, "CANOPY_WORKER_POLL_S": "0.1"},
+    )
+    assert process.stdout is not None
+    lines = []
+    while "API on http://" not in "".join(lines):
+        line = process.stdout.readline()
+        assert line, f"canopy up ended: {''.join(lines)}"
+        lines.append(line)
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        try:
+            httpx.get(f"http://127.0.0.1:{port}/healthz", timeout=1.0)
+            break
+        except httpx.TransportError:
+            time.sleep(0.1)
+    return process, lines
+
+
+def _stop(process: subprocess.Popen[str]) -> None:
+    process.send_signal(signal.SIGINT)
+    process.wait(timeout=30)
+
+
+def test_up_creates_the_database_and_prints_an_admin_key_once(tmp_path: Path) -> None:
+    port = free_port()
+    first, first_lines = _start_up(tmp_path / "data", port)
+    try:
+        key = next(line.strip() for line in first_lines if line.strip().startswith("canopy_"))
+        answer = httpx.get(f"http://127.0.0.1:{port}/v1/keys", headers={"Authorization": f"Bearer {key}"})
+    finally:
+        _stop(first)
+    second, second_lines = _start_up(tmp_path / "data", port)
+    _stop(second)
+    assert (tmp_path / "data" / "canopy.db").is_file()
+    assert answer.status_code == 200
+    assert [item["scopes"] for item in answer.json()] == [["admin"]]
+    assert not any(line.strip().startswith("canopy_") for line in second_lines)
+
+
+def test_up_runs_a_worker_beside_the_api(tmp_path: Path) -> None:
+    port = free_port()
+    process, _ = _start_up(tmp_path / "data", port)
+    try:
+        deadline = time.monotonic() + 60
+        workers: list[str] = []
+        while not workers and time.monotonic() < deadline:
+            children = subprocess.run(
+                ["ps", "-o", "args=", "--ppid", str(process.pid)], capture_output=True, text=True, check=False
+            )
+            workers = [line for line in children.stdout.splitlines() if "-m worker" in line]
+            time.sleep(0.1)
+    finally:
+        _stop(process)
+    assert workers
+
+
+def test_keys_create_prints_the_key_alone_on_its_last_line_and_list_shows_its_prefix(
+    shared_service: Service,
+) -> None:
+    created = shared_service.canopy(
+        "keys", "create", "--scope", "read", "--scope", "capture", "--name", "laptop"
+    )
+    key = created.stdout.strip().splitlines()[-1]
+    listed = shared_service.canopy("keys", "list")
+    prefix = key.split("_")[1]
+    assert created.returncode == 0
+    assert key.startswith(f"canopy_{prefix}_") and " " not in key
+    line = next(line for line in listed.stdout.splitlines() if line.startswith(prefix))
+    assert "capture read" in line and "laptop" in line
+
+
+def test_keys_create_refuses_an_unknown_scope(shared_service: Service) -> None:
+    refused = shared_service.canopy("keys", "create", "--scope", "root")
+    assert refused.returncode == 2
+    assert "scopes must be among capture, read, admin" in refused.stderr
+
+
+def test_revoked_key_stops_working_at_once(shared_service: Service) -> None:
+    key = shared_service.create_key("read")
+    with shared_service.client(key) as client:
+        before = client.get("/v1/orchards")
+        revoked = shared_service.canopy("keys", "revoke", key.split("_")[1])
+        after = client.get("/v1/orchards")
+    assert before.status_code == 200
+    assert revoked.returncode == 0
+    assert after.status_code == 401
+
+
+def test_migrations_build_exactly_the_models_schema(tmp_path: Path) -> None:
+    database = Database(f"sqlite:///{tmp_path / 'schema.db'}")
+    assert not is_current(database)
+    upgrade(database)
+    with database.read_engine.connect() as connection:
+        differences = compare_metadata(MigrationContext.configure(connection), Base.metadata)
+    assert is_current(database)
+    assert differences == []
+
+
+def test_worker_refuses_a_database_that_was_never_migrated(tmp_path: Path) -> None:
+    done = subprocess.run(
+        [CANOPY, "worker"],
+        env={**os.environ, "CANOPY_DATA_DIR": str(tmp_path / "empty")},
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert done.returncode == 2
+    assert "not initialised" in done.stderr
