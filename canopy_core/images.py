@@ -9,7 +9,7 @@ from __future__ import annotations
 import io
 
 import numpy as np
-from PIL import Image
+from PIL import Image, UnidentifiedImageError
 
 from canopy_core.errors import CaptureError
 
@@ -32,6 +32,8 @@ def _open(data: bytes, *, file: str, view: str | None, max_pixels: int) -> Image
         raise CaptureError("the file is empty", file=file, view=view)
     try:
         image = Image.open(io.BytesIO(data))
+    except UnidentifiedImageError as exc:
+        raise CaptureError("not a readable PNG or JPEG image", file=file, view=view) from exc
     except OSError as exc:
         raise CaptureError(f"not a readable PNG or JPEG image ({exc})", file=file, view=view) from exc
     if image.format not in {"PNG", "JPEG"}:

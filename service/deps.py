@@ -12,7 +12,7 @@ from service.keys.service import authenticate, grants
 from service.models import ApiKey
 from service.problems import Forbidden, Unauthorized
 
-__all__ = ["AdminKey", "CaptureKey", "ContextDep", "ReadKey"]
+__all__ = ["AdminKey", "CaptureKey", "CaptureOrReadKey", "ContextDep", "ReadKey"]
 
 
 def get_context(request: Request) -> Context:
@@ -24,7 +24,9 @@ def get_context(request: Request) -> Context:
 ContextDep = Annotated[Context, Depends(get_context)]
 
 
-def _require(scope: str) -> Callable[[Request, Context], ApiKey]:
+def _require(*scopes: str) -> Callable[[Request, Context], ApiKey]:
+    """A dependency that lets through keys holding any of ``scopes`` (or ``admin``)."""
+
     def check(request: Request, context: ContextDep) -> ApiKey:
         header = request.headers.get("authorization", "")
         kind, _, key = header.partition(" ")
@@ -34,10 +36,11 @@ def _require(scope: str) -> Callable[[Request, Context], ApiKey]:
             record = authenticate(session, key.strip())
         if record is None:
             raise Unauthorized("the API key is unknown or revoked")
-        if not grants(record, scope):
+        if not any(grants(record, scope) for scope in scopes):
+            needed = " or ".join(f"'{scope}'" for scope in scopes)
             raise Forbidden(
-                f"this request needs the '{scope}' scope; key {record.prefix} has {record.scopes}",
-                scope=scope,
+                f"this request needs the {needed} scope; key {record.prefix} has {record.scopes}",
+                scope=scopes[0],
             )
         return record
 
@@ -47,3 +50,5 @@ def _require(scope: str) -> Callable[[Request, Context], ApiKey]:
 ReadKey = Annotated[ApiKey, Depends(_require("read"))]
 CaptureKey = Annotated[ApiKey, Depends(_require("capture"))]
 AdminKey = Annotated[ApiKey, Depends(_require("admin"))]
+CaptureOrReadKey = Annotated[ApiKey, Depends(_require("capture", "read"))]
+"""For what an uploading client must see of its own work (which files a capture still misses)."""

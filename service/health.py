@@ -1,11 +1,11 @@
-"""Liveness and readiness: the only routes that answer without an API key."""
+"""Liveness (the one route that answers without an API key) and readiness (any valid key)."""
 
 from __future__ import annotations
 
 from fastapi import APIRouter
 from sqlalchemy.exc import SQLAlchemyError
 
-from service.deps import ContextDep
+from service.deps import ContextDep, ReadKey
 from service.problems import ApiError
 
 __all__ = ["router"]
@@ -24,7 +24,7 @@ def healthz() -> dict[str, str]:
 
 
 @router.get("/readyz")
-def readyz(context: ContextDep) -> dict[str, str]:
+def readyz(context: ContextDep, _key: ReadKey) -> dict[str, str]:
     """The database answers; 503 problem+json when it does not."""
     try:
         context.database.ping()

@@ -13,7 +13,7 @@ from service.bodies import read_body
 from service.captures.schemas import CaptureOut, FileOut
 from service.captures.service import capture_manifest, capture_out, create_capture, get_capture
 from service.captures.uploads import check_content, check_path, parse_content_digest, store_file
-from service.deps import CaptureKey, ContextDep, ReadKey
+from service.deps import CaptureKey, CaptureOrReadKey, ContextDep
 from service.models import CaptureFile
 from service.problems import (
     BadRequest,
@@ -69,7 +69,7 @@ async def create(request: Request, response: Response, context: ContextDep, _key
 
 
 @router.get("/{capture_id}", response_model=CaptureOut, responses=problem_responses(NotFound))
-def read(capture_id: int, context: ContextDep, _key: ReadKey) -> CaptureOut:
+def read(capture_id: int, context: ContextDep, _key: CaptureOrReadKey) -> CaptureOut:
     """A capture and which of its files have been received."""
     with context.database.reading() as session:
         return capture_out(session, get_capture(session, capture_id))
@@ -137,7 +137,6 @@ async def put_file(
     )
 
     def persist() -> tuple[FileOut, bool]:
-        context.store.put(data)
         with context.database.writing() as session:
             capture = get_capture(session, capture_id)
             record, created = store_file(

@@ -12,7 +12,6 @@ import base64
 import binascii
 import re
 from dataclasses import dataclass
-from pathlib import PurePosixPath
 
 from sqlalchemy import select
 from sqlalchemy.orm import Session
@@ -42,15 +41,16 @@ class FileFacts:
 
 def check_path(manifest: CaptureManifest, path: str) -> str:
     """The view a file path belongs to; a 422 problem for a path outside the capture or not in it."""
-    parts = PurePosixPath(path).parts
-    if path.startswith("/") or "\\" in path or any(part in {"..", "."} for part in path.split("/")):
+    segments = path.split("/")
+    if path.startswith("/") or "\\" in path or any(segment in {"..", "."} for segment in segments):
         raise InvalidContent(
             f"file path {path!r} points outside the capture; use a path such as views/1/depth.png",
             code="invalid_path",
             file=path,
         )
-    view = "/".join(parts[:-1])
-    if len(parts) != 3 or view not in manifest.views or parts[-1] not in _VIEW_FILES:
+    view = "/".join(segments[:-1])
+    # Split on "/" as written (no normalising): "views/1//depth.png" or a trailing "/" are other names.
+    if len(segments) != 3 or view not in manifest.views or segments[-1] not in _VIEW_FILES:
         raise InvalidContent(
             f"file path {path!r} is not a file of this capture: its views are {', '.join(manifest.views)}, "
             f"each with {', '.join(_VIEW_FILES[:3])} (or color.jpg)",
@@ -152,7 +152,7 @@ def store_file(
     data: bytes,
     facts: FileFacts,
 ) -> tuple[CaptureFile, bool]:
-    """Record a checked file (its blob already durable); ``(record, created)``.
+    """Store a checked file's bytes and record them; ``(record, created)``.
 
     The same bytes for a stored path are acknowledged again (not created); different bytes, or a second
     colour image for a view, are a 409 conflict. Runs inside the write transaction, so the checks against
@@ -184,6 +184,7 @@ def store_file(
                 view=view,
             )
     _check_sizes(context, files, path=path, view=view, facts=facts)
+    context.store.put(data)  # durable before the record that acknowledges it commits
     record = CaptureFile(
         capture_id=capture.id,
         path=path,

@@ -77,6 +77,15 @@ class Service:
             time.sleep(0.05)
         return process
 
+    def kill_server(self) -> None:
+        """SIGKILL the server: no shutdown, no flushing, as a power cut or an OOM kill would."""
+        self.server.send_signal(signal.SIGKILL)
+        self.server.wait()
+
+    def start_server(self) -> None:
+        """Start `canopy serve` again on the same data folder and port."""
+        self.server = _start_server(self.data_dir, self.environment, int(self.url.rsplit(":", 1)[1]))
+
     def stop(self) -> None:
         for process in [*self.workers, self.server]:
             if process.poll() is None:
@@ -109,18 +118,25 @@ def start_service(root: Path, **settings: str) -> Service:
     )
     admin_key = keys.stdout.strip().splitlines()[-1]
     port = free_port()
-    log = (data_dir / "server.log").open("wb")
-    server = subprocess.Popen([CANOPY, "serve", "--port", str(port)], env=environment, stdout=log, stderr=log)
-    service = Service(data_dir, environment, f"http://127.0.0.1:{port}", admin_key, server)
+    server = _start_server(data_dir, environment, port)
+    return Service(data_dir, environment, f"http://127.0.0.1:{port}", admin_key, server)
+
+
+def _start_server(data_dir: Path, environment: dict[str, str], port: int) -> subprocess.Popen[bytes]:
+    """`canopy serve` on ``port``, once it answers /healthz."""
+    with (data_dir / "server.log").open("ab") as log:
+        server = subprocess.Popen(
+            [CANOPY, "serve", "--port", str(port)], env=environment, stdout=log, stderr=log
+        )
     deadline = time.monotonic() + START_TIMEOUT_S
     while True:
         try:
-            if httpx.get(f"{service.url}/healthz", timeout=1.0).status_code == 200:
-                return service
+            if httpx.get(f"http://127.0.0.1:{port}/healthz", timeout=1.0).status_code == 200:
+                return server
         except httpx.TransportError:
             pass
         if server.poll() is not None or time.monotonic() > deadline:
-            service.stop()
+            server.kill()
             raise RuntimeError(f"canopy serve did not start: {(data_dir / 'server.log').read_text()}")
         time.sleep(0.1)
 
