@@ -8,16 +8,18 @@ upgraded; reads stay deferred and never block the writer.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from typing import Any
+from typing import Any, TypeVar
 
 from sqlalchemy import Engine, create_engine, event, text
+from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session, sessionmaker
 
 __all__ = ["Database"]
 
 _SQLITE_BUSY_TIMEOUT_MS = 30_000
+T = TypeVar("T")
 
 
 def _sqlite_engine(url: str, *, begin: str) -> Engine:
@@ -73,6 +75,20 @@ class Database:
         """A session whose transaction commits at the end of the block, or rolls back on an exception."""
         with self._write_sessions() as session, session.begin():
             yield session
+
+    def write(self, work: Callable[[Session], T]) -> T:
+        """Run ``work`` in a write transaction, once more if a concurrent writer won a uniqueness race.
+
+        Two requests creating the same orchard, or storing the same file, at the same instant: on
+        PostgreSQL one of them violates a unique constraint; run again, it finds the other's row. (SQLite
+        serialises writers, so there it never happens.)
+        """
+        try:
+            with self.writing() as session:
+                return work(session)
+        except IntegrityError:
+            with self.writing() as session:
+                return work(session)
 
     def ping(self) -> None:
         """Raise unless the database answers a trivial query."""

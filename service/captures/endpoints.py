@@ -7,6 +7,7 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Header, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from sqlalchemy import select
+from sqlalchemy.orm import Session
 
 from canopy_core.capture import CaptureManifest
 from service.bodies import read_body
@@ -57,12 +58,11 @@ async def create(request: Request, response: Response, context: ContextDep, _key
     """Create a capture from capture.json's content, or return the one with the same tree and time."""
     body = await read_body(request, limit_bytes=MANIFEST_LIMIT_BYTES, what="capture.json")
 
-    def create_in_database() -> tuple[CaptureOut, bool]:
-        with context.database.writing() as session:
-            capture, created = create_capture(session, body)
-            return capture_out(session, capture), created
+    def create_in_database(session: Session) -> tuple[CaptureOut, bool]:
+        capture, created = create_capture(session, body)
+        return capture_out(session, capture), created
 
-    out, created = await run_in_threadpool(create_in_database)
+    out, created = await run_in_threadpool(context.database.write, create_in_database)
     response.status_code = 201 if created else 200
     response.headers["Location"] = f"/v1/captures/{out.id}"
     return out
@@ -136,14 +136,11 @@ async def put_file(
         check_content, data, path=path, view=view, max_pixels=context.settings.max_image_pixels
     )
 
-    def persist() -> tuple[FileOut, bool]:
-        with context.database.writing() as session:
-            capture = get_capture(session, capture_id)
-            record, created = store_file(
-                context, session, capture, path=path, view=view, data=data, facts=facts
-            )
-            return FileOut.model_validate(record, from_attributes=True), created
+    def persist(session: Session) -> tuple[FileOut, bool]:
+        capture = get_capture(session, capture_id)
+        record, created = store_file(context, session, capture, path=path, view=view, data=data, facts=facts)
+        return FileOut.model_validate(record, from_attributes=True), created
 
-    out, created = await run_in_threadpool(persist)
+    out, created = await run_in_threadpool(context.database.write, persist)
     response.status_code = 201 if created else 200
     return out

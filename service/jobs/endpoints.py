@@ -6,6 +6,7 @@ import hashlib
 from typing import Annotated
 
 from fastapi import APIRouter, Header, Query, Request, Response
+from sqlalchemy.orm import Session
 
 from service.captures.service import get_capture
 from service.deps import CaptureKey, ContextDep, ReadKey
@@ -36,15 +37,17 @@ def start(
     ] = None,
 ) -> JobOut:
     """Queue a measurement of a capture whose files have all arrived; 409 while some are missing."""
-    with context.database.writing() as session:
-        capture = get_capture(session, capture_id)
+
+    def queue(session: Session) -> JobOut:
         job, _created = create_job(
             session,
-            capture,
+            get_capture(session, capture_id),
             overrides=request.config if request else None,
             idempotency_key=idempotency_key,
         )
-        out = job_out(session, job)
+        return job_out(session, job)
+
+    out = context.database.write(queue)
     response.headers["Location"] = f"/v1/jobs/{out.id}"
     return out
 
