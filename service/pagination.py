@@ -11,16 +11,19 @@ from typing import Annotated, Generic, TypeVar
 
 from fastapi import Query
 from pydantic import BaseModel
+from sqlalchemy import Select
+from sqlalchemy.orm import InstrumentedAttribute
 
 from service.problems import BadRequest
 
-__all__ = ["CursorQuery", "LimitQuery", "Page", "decode_cursor", "encode_cursor", "page_of"]
+__all__ = ["CursorQuery", "LimitQuery", "Page", "decode_cursor", "encode_cursor", "keyset", "page_of"]
 
 CursorQuery = Annotated[str | None, Query(description="next_cursor of the previous page")]
 LimitQuery = Annotated[int, Query(ge=1, le=1000, description="Items per page")]
 
 
 Item = TypeVar("Item")
+SelectT = TypeVar("SelectT", bound=Select)  # type: ignore[type-arg]
 
 
 class Page(BaseModel, Generic[Item]):
@@ -51,6 +54,22 @@ def decode_cursor(cursor: str | None) -> int | None:
             code="invalid_cursor",
             field="cursor",
         ) from exc
+
+
+def keyset(
+    query: SelectT,
+    key: InstrumentedAttribute[int],
+    cursor: str | None,
+    limit: int,
+    *,
+    newest_first: bool = False,
+) -> SelectT:
+    """``query`` ordered by ``key``, continued after ``cursor``, with one row more than ``limit`` (to tell
+    whether another page follows)."""
+    position = decode_cursor(cursor)
+    if position is not None:
+        query = query.where(key < position if newest_first else key > position)
+    return query.order_by(key.desc() if newest_first else key).limit(limit + 1)
 
 
 def page_of(items: list[Item], ids: list[int], limit: int) -> Page[Item]:

@@ -18,6 +18,7 @@ from multiprocessing.process import BaseProcess
 from typing import Any
 
 from sqlalchemy import select
+from sqlalchemy.exc import OperationalError
 
 from service.captures.service import get_capture
 from service.context import Context
@@ -29,6 +30,8 @@ __all__ = ["Worker"]
 
 log = logging.getLogger("canopy.worker")
 
+
+_RECONNECT_S = 5.0
 
 _OUTCOME_LOG = {
     "ok": "succeeded",
@@ -74,7 +77,15 @@ class Worker:
         """Claim and run jobs until stopped, waiting ``worker_poll_s`` whenever the queue is empty."""
         log.info("worker %s waiting for jobs", self.owner)
         while not self._stopping.is_set():
-            if not self.run_one():
+            try:
+                ran = self.run_one()
+            except OperationalError as exc:
+                # The database went away (restart, network): a held job's lease runs out and it is claimed
+                # again, so waiting and trying again loses nothing.
+                log.warning("database unavailable (%s); trying again in %.0f s", exc.orig, _RECONNECT_S)
+                self._stopping.wait(_RECONNECT_S)
+                continue
+            if not ran:
                 self._stopping.wait(self.context.settings.worker_poll_s)
 
     def run_one(self) -> bool:

@@ -15,7 +15,7 @@ from sqlalchemy.orm import Session
 from canopy_core.metrics import CanopyMetrics
 from service.farm.schemas import MeasurementSummary, OrchardOut, RowOut, TreeOut
 from service.models import Capture, Measurement, Orchard, Row, Tree
-from service.pagination import Page, decode_cursor, page_of
+from service.pagination import Page, keyset, page_of
 from service.problems import NotFound
 
 __all__ = [
@@ -49,11 +49,7 @@ def _exists(session: Session, model: type[Orchard] | type[Row] | type[Tree], key
 
 def list_orchards(session: Session, *, cursor: str | None, limit: int) -> Page[OrchardOut]:
     """Orchards in the order they were first seen."""
-    query = select(Orchard).order_by(Orchard.id)
-    after = decode_cursor(cursor)
-    if after is not None:
-        query = query.where(Orchard.id > after)
-    rows = list(session.scalars(query.limit(limit + 1)))
+    rows = list(session.scalars(keyset(select(Orchard), Orchard.id, cursor, limit)))
     items = [OrchardOut.model_validate(row, from_attributes=True) for row in rows]
     return page_of(items, [row.id for row in rows], limit)
 
@@ -61,11 +57,9 @@ def list_orchards(session: Session, *, cursor: str | None, limit: int) -> Page[O
 def list_rows(session: Session, orchard_id: int, *, cursor: str | None, limit: int) -> Page[RowOut]:
     """The rows of an orchard."""
     _exists(session, Orchard, orchard_id, "orchard")
-    query = select(Row).where(Row.orchard_id == orchard_id).order_by(Row.id)
-    after = decode_cursor(cursor)
-    if after is not None:
-        query = query.where(Row.id > after)
-    rows = list(session.scalars(query.limit(limit + 1)))
+    rows = list(
+        session.scalars(keyset(select(Row).where(Row.orchard_id == orchard_id), Row.id, cursor, limit))
+    )
     items = [RowOut.model_validate(row, from_attributes=True) for row in rows]
     return page_of(items, [row.id for row in rows], limit)
 
@@ -92,11 +86,7 @@ def _summary(measurement: Measurement, captured_at: datetime) -> MeasurementSumm
 def list_trees(session: Session, row_id: int, *, cursor: str | None, limit: int) -> Page[TreeOut]:
     """The trees of a row, each with its latest measurement."""
     _exists(session, Row, row_id, "row")
-    query = select(Tree).where(Tree.row_id == row_id).order_by(Tree.id)
-    after = decode_cursor(cursor)
-    if after is not None:
-        query = query.where(Tree.id > after)
-    trees = list(session.scalars(query.limit(limit + 1)))
+    trees = list(session.scalars(keyset(select(Tree).where(Tree.row_id == row_id), Tree.id, cursor, limit)))
     latest: dict[int, MeasurementSummary] = {}
     if trees:
         newest = (
@@ -134,11 +124,8 @@ def list_tree_measurements(
 ) -> Page[MeasurementSummary]:
     """A tree's measurements, newest first (by measurement id): its growth history."""
     _exists(session, Tree, tree_id, "tree")
-    query = _summaries().where(Measurement.tree_id == tree_id).order_by(Measurement.id.desc())
-    before = decode_cursor(cursor)
-    if before is not None:
-        query = query.where(Measurement.id < before)
-    rows = session.execute(query.limit(limit + 1)).all()
+    query = _summaries().where(Measurement.tree_id == tree_id)
+    rows = session.execute(keyset(query, Measurement.id, cursor, limit, newest_first=True)).all()
     items = [_summary(measurement, captured_at) for measurement, captured_at in rows]
     return page_of(items, [measurement.id for measurement, _ in rows], limit)
 

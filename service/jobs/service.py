@@ -12,7 +12,7 @@ from canopy_core.measure import config_for
 from service.captures.service import capture_manifest, missing_files
 from service.jobs.schemas import JobError, JobOut
 from service.models import Capture, CaptureFile, Job, Measurement
-from service.pagination import Page, decode_cursor, page_of
+from service.pagination import Page, keyset, page_of
 from service.problems import Conflict, NotFound
 
 __all__ = ["create_job", "get_job", "job_out", "list_jobs"]
@@ -94,15 +94,12 @@ def list_jobs(
     session: Session, *, state: str | None, capture_id: int | None, cursor: str | None, limit: int
 ) -> Page[JobOut]:
     """Jobs oldest first, optionally of one state or capture."""
-    query = select(Job, Measurement.id).outerjoin(Measurement, Measurement.job_id == Job.id).order_by(Job.id)
-    after = decode_cursor(cursor)
-    if after is not None:
-        query = query.where(Job.id > after)
+    query = select(Job, Measurement.id).outerjoin(Measurement, Measurement.job_id == Job.id)
     if state is not None:
         query = query.where(Job.state == state)
     if capture_id is not None:
         query = query.where(Job.capture_id == capture_id)
-    rows = session.execute(query.limit(limit + 1)).all()
+    rows = session.execute(keyset(query, Job.id, cursor, limit)).all()
     return page_of(
         [_out(job, measurement_id) for job, measurement_id in rows], [job.id for job, _ in rows], limit
     )
