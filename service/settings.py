@@ -29,6 +29,7 @@ class Settings(BaseSettings):
     max_image_pixels: int = Field(DEFAULT_MAX_PIXELS, gt=0, description="Largest accepted image.")
     job_lease_s: float = Field(30.0, gt=0, description="A worker silent this long loses its job.")
     job_max_attempts: int = Field(3, ge=1, description="Attempts before a crashing job stays failed.")
+    job_timeout_s: float = Field(600.0, gt=0, description="A measurement running longer is stopped.")
     worker_poll_s: float = Field(0.5, gt=0, description="Pause between claims when the queue is empty.")
 
     @cached_property

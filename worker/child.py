@@ -9,10 +9,11 @@ core explains (permanent), or ``("crash", text)`` for an unexpected exception (r
 
 from __future__ import annotations
 
-import ctypes
+import contextlib
 import json
+import os
 import signal
-import sys
+import threading
 import traceback
 from dataclasses import dataclass
 from multiprocessing.connection import Connection
@@ -25,9 +26,7 @@ from canopy_core.errors import CanopyError
 from canopy_core.measure import measure
 from service.storage import BlobStore
 
-__all__ = ["MeasurementSpec", "run_measurement"]
-
-_PR_SET_PDEATHSIG = 1
+__all__ = ["MeasurementSpec", "exit_with_worker", "run_measurement"]
 
 
 @dataclass(frozen=True)
@@ -42,16 +41,30 @@ class MeasurementSpec:
     max_pixels: int
 
 
-def _die_with_parent() -> None:
-    # A worker killed with SIGKILL cannot stop its child; the kernel does, so that no orphan keeps
-    # measuring a job that another worker will run again.
-    if sys.platform.startswith("linux"):
-        ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGKILL)
+def exit_with_worker(lifeline: Connection) -> None:
+    """Exit as soon as the worker is gone, however it went (even SIGKILL, which it cannot act on).
+
+    Only the worker holds the other end of ``lifeline`` and never writes to it: the read ends when the
+    worker's end closes, with the worker. Then no orphan goes on measuring a job another worker will run.
+    """
+
+    def watch() -> None:
+        with contextlib.suppress(EOFError, OSError):
+            lifeline.recv()
+        os._exit(70)
+
+    threading.Thread(target=watch, name="lifeline", daemon=True).start()
 
 
-def run_measurement(connection: Connection, spec: MeasurementSpec) -> None:
-    """Measure the job's capture and send the outcome through ``connection`` (see the module docstring)."""
-    _die_with_parent()
+def run_measurement(connection: Connection, lifeline: Connection, spec: MeasurementSpec) -> None:
+    """Measure the job's capture and send the outcome through ``connection`` (see the module docstring).
+
+    The worker decides when a measurement stops (its shutdown, a lost lease, a timeout): the child ignores
+    the SIGINT and SIGTERM that a terminal or a service manager sends to the whole process group.
+    """
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    exit_with_worker(lifeline)
     store = BlobStore(spec.blob_dir)
 
     def read(path: str) -> bytes | None:

@@ -19,6 +19,7 @@ from typing import Any
 
 from sqlalchemy import select
 from sqlalchemy.exc import OperationalError
+from sqlalchemy.orm import Session
 
 from service.captures.service import get_capture
 from service.context import Context
@@ -32,11 +33,13 @@ log = logging.getLogger("canopy.worker")
 
 
 _RECONNECT_S = 5.0
+_RECORD_TRIES = 3
 
 _OUTCOME_LOG = {
     "ok": "succeeded",
     "error": "failed (the measurement explains why)",
     "crash": "crashed (retried while attempts remain)",
+    "timeout": "timed out (retried while attempts remain)",
     "stopped": "handed back to the queue (worker stopping)",
     "lost": "abandoned (lease lost)",
 }
@@ -128,39 +131,53 @@ class Worker:
             )
 
     def _renew(self, lease: Lease, *, stage: str | None = None, progress: float | None = None) -> bool:
-        with self.context.database.writing() as session:
-            return renew(
-                session, lease, lease_s=self.context.settings.job_lease_s, stage=stage, progress=progress
+        """Extend the lease; False only when it is lost. A database hiccup is not a loss: the next
+        heartbeat tries again, and if the lease runs out meanwhile, finishing checks it anyway."""
+        try:
+            with self.context.database.writing() as session:
+                return renew(
+                    session, lease, lease_s=self.context.settings.job_lease_s, stage=stage, progress=progress
+                )
+        except OperationalError as exc:
+            log.warning(
+                "job %d: could not renew the lease (%s); trying at the next heartbeat", lease.job_id, exc.orig
             )
+            return True
 
     def _run(self, lease: Lease) -> _Outcome:
         receiver, sender = self._processes.Pipe(duplex=False)
+        lifeline, held_end = self._processes.Pipe(duplex=False)
         process = self._processes.Process(
             target=run_measurement,
-            args=(sender, self._spec(lease)),
+            args=(sender, lifeline, self._spec(lease)),
             name=f"canopy-job-{lease.job_id}",
             daemon=True,
         )
         process.start()
         sender.close()
+        lifeline.close()
+        log.info("job %d: measuring in process %s", lease.job_id, process.pid)
         try:
             return self._supervise(lease, process, receiver)
         finally:
             receiver.close()
+            held_end.close()
             if process.is_alive():
                 process.kill()
             process.join()
 
     def _supervise(self, lease: Lease, process: BaseProcess, receiver: Connection) -> _Outcome:
-        heartbeat_s = self.context.settings.job_heartbeat_s
-        next_heartbeat = time.monotonic() + heartbeat_s
+        settings = self.context.settings
+        deadline = time.monotonic() + settings.job_timeout_s
+        next_heartbeat = time.monotonic() + settings.job_heartbeat_s
         while True:
-            if self._stopping.is_set():
-                return _Outcome("stopped")
+            # The child's messages first: an outcome that has arrived is never dropped for a shutdown.
             if receiver.poll(min(max(next_heartbeat - time.monotonic(), 0.0), 0.5)):
                 try:
                     message = receiver.recv()
                 except EOFError:
+                    if self._stopping.is_set():
+                        return _Outcome("stopped")
                     process.join(5)
                     return _Outcome("crash", (_exit_description(process.exitcode),))
                 if message[0] != "progress":
@@ -168,34 +185,49 @@ class Worker:
                 _, stage, fraction = message
                 if not self._renew(lease, stage=stage, progress=fraction):
                     return _Outcome("lost")
-                next_heartbeat = time.monotonic() + heartbeat_s
-            elif time.monotonic() >= next_heartbeat:
+                next_heartbeat = time.monotonic() + settings.job_heartbeat_s
+            if self._stopping.is_set():
+                return _Outcome("stopped")
+            if time.monotonic() >= deadline:
+                return _Outcome(
+                    "timeout", (f"the measurement took longer than {settings.job_timeout_s:g} s",)
+                )
+            if time.monotonic() >= next_heartbeat:
                 if not self._renew(lease):
                     return _Outcome("lost")
-                next_heartbeat = time.monotonic() + heartbeat_s
+                next_heartbeat = time.monotonic() + settings.job_heartbeat_s
 
     def _record(self, lease: Lease, outcome: _Outcome) -> None:
-        settings = self.context.settings
-        with self.context.database.writing() as session:
-            if outcome.kind == "ok":
-                document, cloud_sha256, cloud_points = outcome.message
-                held = (
-                    complete(
-                        session, lease, result=document, cloud_sha256=cloud_sha256, cloud_points=cloud_points
-                    )
-                    is not None
-                )
-            elif outcome.kind == "error":
-                held = fail(session, lease, error=outcome.message[0], retry=False, max_attempts=1)
-            elif outcome.kind == "crash":
-                error = {"code": "measurement_crashed", "message": outcome.message[0]}
-                held = fail(session, lease, error=error, retry=True, max_attempts=settings.job_max_attempts)
-            elif outcome.kind == "stopped":
-                held = release(session, lease)
-            else:
-                held = False
+        """Write the outcome, trying again through a short database outage: the result was paid for."""
+        for attempt in range(_RECORD_TRIES):
+            try:
+                with self.context.database.writing() as session:
+                    held = self._write_outcome(session, lease, outcome)
+                break
+            except OperationalError:
+                if attempt == _RECORD_TRIES - 1:
+                    raise
+                self._stopping.wait(_RECONNECT_S)
         if not held:
             log.warning("job %d: lease lost to another worker; its outcome here is dropped", lease.job_id)
+
+    def _write_outcome(self, session: Session, lease: Lease, outcome: _Outcome) -> bool:
+        max_attempts = self.context.settings.job_max_attempts
+        if outcome.kind == "ok":
+            document, cloud_sha256, cloud_points = outcome.message
+            measurement_id = complete(
+                session, lease, result=document, cloud_sha256=cloud_sha256, cloud_points=cloud_points
+            )
+            return measurement_id is not None
+        if outcome.kind == "error":
+            return fail(session, lease, error=outcome.message[0], retry=False, max_attempts=max_attempts)
+        if outcome.kind in ("crash", "timeout"):
+            code = "measurement_crashed" if outcome.kind == "crash" else "measurement_timeout"
+            error = {"code": code, "message": outcome.message[0]}
+            return fail(session, lease, error=error, retry=True, max_attempts=max_attempts)
+        if outcome.kind == "stopped":
+            return release(session, lease)
+        return False
 
 
 def _exit_description(exitcode: int | None) -> str:

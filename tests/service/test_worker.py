@@ -4,6 +4,7 @@ measurement explains fail at once, and a failed capture can be measured again wi
 from __future__ import annotations
 
 import json
+import re
 import shutil
 import signal
 import sqlite3
@@ -48,8 +49,10 @@ def test_job_of_a_killed_worker_is_finished_by_another_and_stored_once(
         capture_id = upload_capture(client, tree_capture)
         job_url = client.post(f"/v1/captures/{capture_id}/jobs").headers["location"]
     running = _wait_until_measuring(service, job_url)
+    measuring_pid = _measurement_process(service, worker_index=0)
     doomed.send_signal(signal.SIGKILL)
     doomed.wait()
+    _wait_until_gone(measuring_pid)
 
     service.start_worker()
     with service.client() as client:
@@ -64,6 +67,39 @@ def test_job_of_a_killed_worker_is_finished_by_another_and_stored_once(
             "SELECT COUNT(*) FROM measurements WHERE job_id = ?", (job["id"],)
         ).fetchone()
     assert stored == (1,)
+
+
+def test_stopped_worker_hands_its_job_back_without_counting_the_attempt(
+    service: Service, tree_capture: Path
+) -> None:
+    stopping = service.start_worker()
+    with service.client() as client:
+        capture_id = upload_capture(client, tree_capture)
+        job_url = client.post(f"/v1/captures/{capture_id}/jobs").headers["location"]
+        _wait_until_measuring(service, job_url)
+        stopping.send_signal(signal.SIGTERM)
+        assert stopping.wait(timeout=30) == 0
+        handed_back = client.get(job_url).json()
+        service.start_worker()
+        job = wait_for_job(client, job_url)
+    assert (handed_back["state"], handed_back["attempts"]) == ("queued", 0)
+    assert (job["state"], job["attempts"]) == ("succeeded", 1)
+
+
+def test_measurement_over_the_time_limit_is_stopped_and_retried_then_fails(
+    tmp_path: Path, tree_capture: Path
+) -> None:
+    service = start_service(tmp_path, job_timeout_s="0.3")
+    try:
+        service.start_worker()
+        with service.client() as client:
+            capture_id = upload_capture(client, tree_capture)
+            job = wait_for_job(client, client.post(f"/v1/captures/{capture_id}/jobs").headers["location"])
+    finally:
+        service.stop()
+    assert (job["state"], job["attempts"]) == ("failed", 3)
+    assert job["error"]["code"] == "measurement_timeout"
+    assert "0.3 s" in job["error"]["message"]
 
 
 def test_crashing_measurement_is_retried_then_stays_failed_after_three_attempts(
@@ -120,6 +156,26 @@ def test_repeated_job_request_with_the_same_idempotency_key_returns_the_same_job
     assert first.status_code == second.status_code == 202
     assert first.json()["id"] == second.json()["id"]
     assert len(after) == len(before) + 1
+
+
+def _measurement_process(service: Service, *, worker_index: int) -> int:
+    """The pid of the process measuring for a worker, from the worker's log."""
+    log = (service.data_dir / f"worker-{worker_index}.log").read_text()
+    return int(re.findall(r"measuring in process (\d+)", log)[-1])
+
+
+def _wait_until_gone(pid: int, *, timeout_s: float = 30.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while Path(f"/proc/{pid}").exists() and _state(pid) != "Z":
+        assert time.monotonic() < deadline, f"measurement process {pid} outlived its killed worker"
+        time.sleep(0.05)
+
+
+def _state(pid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (FileNotFoundError, IndexError):
+        return "gone"
 
 
 def _renamed(capture: Path, into: Path, *, tree: str) -> Path:
