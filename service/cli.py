@@ -11,7 +11,6 @@ import os
 import subprocess
 import sys
 import threading
-import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
@@ -78,6 +77,7 @@ class _WorkerProcess:
     def __init__(self, environment: dict[str, str]) -> None:
         self._environment = environment
         self._stopping = threading.Event()
+        self._lock = threading.Lock()  # no restart may slip in while stopping
         self._process = self._start()
         threading.Thread(target=self._watch, name="worker-watch", daemon=True).start()
 
@@ -85,17 +85,21 @@ class _WorkerProcess:
         return subprocess.Popen([sys.executable, "-m", "worker"], env=self._environment)
 
     def _watch(self) -> None:
-        while not self._stopping.is_set():
+        while True:
             code = self._process.wait()
-            if self._stopping.is_set():
+            if self._stopping.wait(1.0):
                 return
-            typer.echo(f"worker exited with code {code}; starting it again", err=True)
-            time.sleep(1.0)
-            self._process = self._start()
+            with self._lock:
+                if self._stopping.is_set():
+                    return
+                typer.echo(f"worker exited with code {code}; starting it again", err=True)
+                self._process = self._start()
 
     def stop(self) -> None:
-        self._stopping.set()
-        self._process.terminate()
+        """Stop the worker (it hands a running job back to the queue) and start no other."""
+        with self._lock:
+            self._stopping.set()
+            self._process.terminate()
         try:
             self._process.wait(timeout=30)
         except subprocess.TimeoutExpired:

@@ -18,12 +18,16 @@ from sqlalchemy.orm import Session, sessionmaker
 
 __all__ = ["Database"]
 
-_SQLITE_BUSY_TIMEOUT_MS = 30_000
+_SQLITE_BUSY_TIMEOUT_MS = 10_000
+"""How long a writer waits for another's transaction: write transactions hold no file I/O and last
+milliseconds, and a worker's lease renewal (every lease/3 s) must land before the lease runs out."""
 T = TypeVar("T")
 
 
 def _sqlite_engine(url: str, *, begin: str) -> Engine:
-    engine = create_engine(url, connect_args={"check_same_thread": False, "timeout": 30})
+    engine = create_engine(
+        url, connect_args={"check_same_thread": False, "timeout": _SQLITE_BUSY_TIMEOUT_MS / 1000}
+    )
 
     @event.listens_for(engine, "connect")
     def _on_connect(dbapi_connection: Any, _record: Any) -> None:

@@ -51,4 +51,4 @@ ReadKey = Annotated[ApiKey, Depends(_require("read"))]
 CaptureKey = Annotated[ApiKey, Depends(_require("capture"))]
 AdminKey = Annotated[ApiKey, Depends(_require("admin"))]
 CaptureOrReadKey = Annotated[ApiKey, Depends(_require("capture", "read"))]
-"""For what an uploading client must see of its own work (which files a capture still misses)."""
+"""For what an uploading client must see of its own work: which files a capture misses, its job's state."""

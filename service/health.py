@@ -1,4 +1,4 @@
-"""Liveness (the one route that answers without an API key) and readiness (any valid key)."""
+"""Liveness (the one route that answers without an API key) and readiness (a key with read scope)."""
 
 from __future__ import annotations
 

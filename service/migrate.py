@@ -22,12 +22,26 @@ def _config() -> Config:
 
 
 def upgrade(database: Database) -> None:
-    """Apply every migration the database lacks (nothing when it is current)."""
+    """Apply every migration the database lacks (nothing when it is current).
+
+    On SQLite, foreign keys are off while migrating: Alembic alters a table there by copying it and
+    dropping the original, which with foreign keys on would cascade-delete every row that refers to it.
+    They are checked afterwards instead.
+    """
     config = _config()
     with database.write_engine.connect() as connection:
+        if database.is_sqlite:
+            # Outside any transaction (the driver starts none on its own), where SQLite honours it.
+            connection.connection.driver_connection.execute("PRAGMA foreign_keys=OFF")  # type: ignore[union-attr]
         config.attributes["connection"] = connection
         command.upgrade(config, "head")
         connection.commit()
+        if database.is_sqlite:
+            broken = connection.exec_driver_sql("PRAGMA foreign_key_check").fetchall()
+            connection.rollback()
+            connection.connection.driver_connection.execute("PRAGMA foreign_keys=ON")  # type: ignore[union-attr]
+            if broken:
+                raise RuntimeError(f"the migration left rows whose references are broken: {broken[:5]}")
 
 
 def is_current(database: Database) -> bool:

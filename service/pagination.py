@@ -23,7 +23,7 @@ LimitQuery = Annotated[int, Query(ge=1, le=1000, description="Items per page")]
 
 
 Item = TypeVar("Item")
-SelectT = TypeVar("SelectT", bound=Select)  # type: ignore[type-arg]
+SelectT = TypeVar("SelectT", bound=Select)
 
 
 class Page(BaseModel, Generic[Item]):

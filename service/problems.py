@@ -5,11 +5,13 @@ every error (ours, the measurement core's, FastAPI's validation and Starlette's 
 
 from __future__ import annotations
 
+import logging
 from typing import Any, ClassVar
 
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
+from sqlalchemy.exc import OperationalError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from canopy_core.errors import CanopyError
@@ -29,6 +31,8 @@ __all__ = [
 ]
 
 PROBLEM_JSON = "application/problem+json"
+
+log = logging.getLogger("canopy.service")
 
 
 class ApiError(Exception):
@@ -145,8 +149,26 @@ def _http_error(_request: Request, exc: Exception) -> JSONResponse:
     )
 
 
+def _database_unavailable(_request: Request, exc: Exception) -> JSONResponse:
+    log.warning("database unavailable: %s", exc)
+    return problem(
+        503,
+        "Database unavailable",
+        "the database is busy or unreachable; try again shortly",
+        code="database_unavailable",
+        headers={"Retry-After": "2"},
+    )
+
+
+def _unexpected(_request: Request, exc: Exception) -> JSONResponse:
+    log.error("unexpected error", exc_info=exc)
+    return problem(500, "Internal error", "an unexpected error occurred; it is logged", code="internal_error")
+
+
 def install_problem_handlers(app: FastAPI) -> None:
     """Render every error the app can raise as problem+json."""
+    app.add_exception_handler(OperationalError, _database_unavailable)
+    app.add_exception_handler(Exception, _unexpected)
     app.add_exception_handler(ApiError, _api_error)
     app.add_exception_handler(CanopyError, _canopy_error)
     app.add_exception_handler(RequestValidationError, _validation_error)

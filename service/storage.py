@@ -38,8 +38,12 @@ class BlobStore:
         sha256 = sha256_hex(data)
         target = self.path(sha256)
         if target.is_file() and target.stat().st_size == len(data):
+            # Another upload of the same bytes renamed it into place; make sure that rename is durable.
+            _fsync_directory(target.parent)
             return sha256
-        target.parent.mkdir(parents=True, exist_ok=True)
+        if not target.parent.is_dir():
+            target.parent.mkdir(parents=True, exist_ok=True)
+            _fsync_directory(self.root)
         descriptor, temporary = tempfile.mkstemp(dir=target.parent, prefix=".incoming-")
         try:
             with os.fdopen(descriptor, "wb") as stream:

@@ -6,14 +6,20 @@ from typing import Annotated, Any
 
 from fastapi import APIRouter, Header, Request, Response
 from fastapi.concurrency import run_in_threadpool
-from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from canopy_core.capture import CaptureManifest
 from service.bodies import read_body
 from service.captures.schemas import CaptureOut, FileOut
 from service.captures.service import capture_manifest, capture_out, create_capture, get_capture
-from service.captures.uploads import check_content, check_path, parse_content_digest, store_file
+from service.captures.uploads import (
+    FileFacts,
+    check_against_stored,
+    check_content,
+    check_path,
+    parse_content_digest,
+    record_file,
+)
 from service.deps import CaptureKey, CaptureOrReadKey, ContextDep
 from service.models import CaptureFile
 from service.problems import (
@@ -100,47 +106,49 @@ async def put_file(
 ) -> FileOut:
     """Store one file of the capture, verified against its SHA-256; re-sending the same bytes is harmless."""
 
-    def locate() -> tuple[str, CaptureFile | None]:
+    def locate() -> str:
         with context.database.reading() as session:
-            capture = get_capture(session, capture_id)
-            view = check_path(capture_manifest(capture), path)
-            stored = session.scalar(
-                select(CaptureFile).where(CaptureFile.capture_id == capture_id, CaptureFile.path == path)
-            )
-            return view, stored
+            return check_path(capture_manifest(get_capture(session, capture_id)), path)
 
-    view, stored = await run_in_threadpool(locate)
-    declared = parse_content_digest(content_digest)
-    if stored is not None and stored.sha256 != declared:
-        raise Conflict(
-            f"{path} is already stored with other content (sha-256 {stored.sha256}); "
-            "a stored file is never replaced",
-            code="file_conflict",
-            file=path,
-            view=view,
+    def compare(session: Session, sha256: str, facts: FileFacts | None) -> CaptureFile | None:
+        return check_against_stored(
+            context, session, capture_id, path=path, view=view, sha256=sha256, facts=facts
         )
+
+    def compare_now(sha256: str, facts: FileFacts | None) -> CaptureFile | None:
+        with context.database.reading() as session:
+            return compare(session, sha256, facts)
+
+    def persist(session: Session) -> tuple[CaptureFile, bool]:
+        repeated = compare(session, sha256, facts)
+        if repeated is not None:
+            return repeated, False
+        return record_file(session, capture_id, path=path, data=data, facts=facts), True
+
+    view = await run_in_threadpool(locate)
+    declared = parse_content_digest(content_digest)
+    # A conflict is told before the body is read: no point in taking megabytes that will be refused.
+    await run_in_threadpool(compare_now, declared, None)
     data = await read_body(request, limit_bytes=context.settings.max_upload_bytes, what=path)
-    actual = sha256_hex(data)
-    if actual != declared:
+    sha256 = sha256_hex(data)
+    if sha256 != declared:
         raise BadRequest(
-            f"the body's SHA-256 ({actual}) is not the one Content-Digest declares ({declared}); "
+            f"the body's SHA-256 ({sha256}) is not the one Content-Digest declares ({declared}); "
             "the file was damaged on the way: send it again",
             code="digest_mismatch",
             file=path,
             field="Content-Digest",
         )
-    if stored is not None:
+    repeated = await run_in_threadpool(compare_now, sha256, None)
+    if repeated is None:
+        facts = await run_in_threadpool(
+            check_content, data, path=path, view=view, max_pixels=context.settings.max_image_pixels
+        )
+        repeated = await run_in_threadpool(compare_now, sha256, facts)
+    if repeated is not None:
         response.status_code = 200
-        return FileOut.model_validate(stored, from_attributes=True)
-    facts = await run_in_threadpool(
-        check_content, data, path=path, view=view, max_pixels=context.settings.max_image_pixels
-    )
-
-    def persist(session: Session) -> tuple[FileOut, bool]:
-        capture = get_capture(session, capture_id)
-        record, created = store_file(context, session, capture, path=path, view=view, data=data, facts=facts)
-        return FileOut.model_validate(record, from_attributes=True), created
-
-    out, created = await run_in_threadpool(context.database.write, persist)
+        return FileOut.model_validate(repeated, from_attributes=True)
+    await run_in_threadpool(context.store.put, data)
+    record, created = await run_in_threadpool(context.database.write, persist)
     response.status_code = 201 if created else 200
-    return out
+    return FileOut.model_validate(record, from_attributes=True)

@@ -2,8 +2,9 @@
 
 The content is checked with the measurement core's own rules (``parse_camera``, ``decode_depth``,
 ``decode_color``), so a file the service accepts is a file the measurement can read. Sizes are checked
-against camera.json whichever arrives first. The bytes are made durable in the blob store before the record
-that acknowledges them is committed.
+against camera.json whichever arrives first. The bytes are made durable in the blob store (outside any
+database lock) before the record that acknowledges them is committed; the checks against the capture's
+other files run again in the write transaction.
 """
 
 from __future__ import annotations
@@ -20,11 +21,18 @@ from canopy_core.capture import CameraModel, CaptureManifest, color_file_names, 
 from canopy_core.errors import CaptureError
 from canopy_core.images import decode_color, decode_depth
 from service.context import Context
-from service.models import Capture, CaptureFile
+from service.models import CaptureFile
 from service.problems import BadRequest, Conflict, InvalidContent
 from service.storage import sha256_hex
 
-__all__ = ["FileFacts", "check_content", "check_path", "parse_content_digest", "store_file"]
+__all__ = [
+    "FileFacts",
+    "check_against_stored",
+    "check_content",
+    "check_path",
+    "parse_content_digest",
+    "record_file",
+]
 
 _VIEW_FILES = ("camera.json", "depth.png", "color.png", "color.jpg")
 _DIGEST_MEMBER = re.compile(r"\s*([A-Za-z0-9-]+)\s*=\s*:([A-Za-z0-9+/=]*):\s*")
@@ -142,26 +150,25 @@ def _check_sizes(
             )
 
 
-def store_file(
+def check_against_stored(
     context: Context,
     session: Session,
-    capture: Capture,
+    capture_id: int,
     *,
     path: str,
     view: str,
-    data: bytes,
-    facts: FileFacts,
-) -> tuple[CaptureFile, bool]:
-    """Store a checked file's bytes and record them; ``(record, created)``.
+    sha256: str,
+    facts: FileFacts | None,
+) -> CaptureFile | None:
+    """Check a file against what the capture holds: the record of these same bytes at ``path`` if there is
+    one (the upload is a harmless repeat), else None (it may be stored).
 
-    The same bytes for a stored path are acknowledged again (not created); different bytes, or a second
-    colour image for a view, are a 409 conflict. Runs inside the write transaction, so the checks against
-    other files see every file acknowledged before.
+    Different bytes for a stored path, or a second colour image for a view, are a 409 conflict; with
+    ``facts`` (the content was checked), sizes that disagree with camera.json are a 422.
     """
-    sha256 = sha256_hex(data)
     files = {
         record.path: record
-        for record in session.scalars(select(CaptureFile).where(CaptureFile.capture_id == capture.id))
+        for record in session.scalars(select(CaptureFile).where(CaptureFile.capture_id == capture_id))
     }
     existing = files.get(path)
     if existing is not None:
@@ -173,7 +180,7 @@ def store_file(
                 file=path,
                 view=view,
             )
-        return existing, False
+        return existing
     if path in color_file_names(view):
         other = next((name for name in color_file_names(view) if name != path and name in files), None)
         if other is not None:
@@ -183,16 +190,23 @@ def store_file(
                 file=path,
                 view=view,
             )
-    _check_sizes(context, files, path=path, view=view, facts=facts)
-    context.store.put(data)  # durable before the record that acknowledges it commits
+    if facts is not None:
+        _check_sizes(context, files, path=path, view=view, facts=facts)
+    return None
+
+
+def record_file(
+    session: Session, capture_id: int, *, path: str, data: bytes, facts: FileFacts
+) -> CaptureFile:
+    """Record a file whose bytes are already durable in the blob store."""
     record = CaptureFile(
-        capture_id=capture.id,
+        capture_id=capture_id,
         path=path,
-        sha256=sha256,
+        sha256=sha256_hex(data),
         size_bytes=len(data),
         image_width=facts.image_width,
         image_height=facts.image_height,
     )
     session.add(record)
     session.flush()
-    return record, True
+    return record

@@ -21,7 +21,7 @@ from service.farm.service import (
     measurements_csv,
 )
 from service.pagination import CursorQuery, LimitQuery, Page
-from service.problems import BadRequest, NotFound, problem_responses
+from service.problems import ApiError, BadRequest, NotFound, problem_responses
 
 __all__ = ["router"]
 
@@ -111,8 +111,11 @@ def cloud(measurement_id: int, context: ContextDep, _key: ReadKey) -> FileRespon
     """The fused cloud of the measured views in the world frame (z up, ground at the trunk z = 0)."""
     with context.database.reading() as session:
         record = get_measurement(session, measurement_id)
+    path = context.store.path(record.cloud_sha256)
+    if not path.is_file():
+        raise ApiError(f"the fused cloud of measurement {measurement_id} is missing from the blob store")
     return FileResponse(
-        context.store.path(record.cloud_sha256),
+        path,
         media_type="application/octet-stream",
         filename=f"measurement-{measurement_id}.ply",
     )

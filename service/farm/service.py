@@ -178,7 +178,8 @@ def measurements_csv(
     buffer = io.StringIO()
     writer = csv.writer(buffer, lineterminator="\n")
     writer.writerow(CSV_COLUMNS)
-    for measurement, captured_at, orchard_name, row_name, tree_name in session.execute(query):
+    rows = session.execute(query.execution_options(yield_per=500))
+    for measurement, captured_at, orchard_name, row_name, tree_name in rows:
         identity = {
             "measurement_id": measurement.id,
             "orchard": orchard_name,

@@ -9,7 +9,7 @@ from fastapi import APIRouter, Header, Query, Request, Response
 from sqlalchemy.orm import Session
 
 from service.captures.service import get_capture
-from service.deps import CaptureKey, ContextDep, ReadKey
+from service.deps import CaptureKey, CaptureOrReadKey, ContextDep, ReadKey
 from service.jobs.schemas import JobOut, JobRequest, JobState
 from service.jobs.service import create_job, get_job, job_out, list_jobs
 from service.pagination import CursorQuery, LimitQuery, Page
@@ -61,7 +61,7 @@ def read(
     job_id: int,
     http_request: Request,
     context: ContextDep,
-    _key: ReadKey,
+    _key: CaptureOrReadKey,
 ) -> Response:
     """A job's state, stage and progress; send If-None-Match with the last ETag to get 304 while unchanged."""
     with context.database.reading() as session:

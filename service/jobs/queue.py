@@ -154,7 +154,7 @@ def fail(session: Session, lease: Lease, *, error: dict[str, Any], retry: bool, 
     if job is None:
         return False
     if retry and job.attempts < max_attempts:
-        job.state, job.error = "queued", error
+        job.state, job.error, job.stage, job.progress = "queued", error, None, 0.0
         job.lease_owner = job.lease_expires_at = None
     else:
         _finish(job, state="failed", error=error, now=utc_now())

@@ -78,7 +78,7 @@ def _out(job: Job, measurement_id: int | None) -> JobOut:
     return JobOut(
         id=job.id,
         capture_id=job.capture_id,
-        state=job.state,  # type: ignore[arg-type]
+        state=job.state,
         stage=job.stage,
         progress=job.progress,
         attempts=job.attempts,
