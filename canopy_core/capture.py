@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 from collections.abc import Callable
 from dataclasses import dataclass
+from datetime import datetime
 from pathlib import Path, PurePosixPath
 from typing import Any
 
@@ -28,6 +29,7 @@ __all__ = [
     "FileReader",
     "Intrinsics",
     "View",
+    "capture_time",
     "color_file_names",
     "expected_files",
     "folder_reader",
@@ -234,6 +236,29 @@ def parse_camera(data: bytes, *, file: str, view: str | None = None) -> CameraMo
         color=Intrinsics(**model.color_intrinsics.model_dump()) if model.color_intrinsics else None,
         depth_to_color=np.asarray(model.depth_to_color, dtype=float) if model.depth_to_color else None,
     )
+
+
+def capture_time(manifest: CaptureManifest) -> datetime:
+    """The capture's ``captured_at`` as an aware datetime.
+
+    Measuring needs no time, so :func:`parse_manifest` accepts any text; whatever orders captures (the
+    service, the capture client) needs ISO 8601 with a time zone, and refuses other text with this error.
+    """
+    try:
+        moment = datetime.fromisoformat(manifest.captured_at)
+    except ValueError as exc:
+        raise CaptureError(
+            f"captured_at {manifest.captured_at!r} is not an ISO 8601 time (e.g. 2026-11-20T08:31:00Z)",
+            file="capture.json",
+            field="captured_at",
+        ) from exc
+    if moment.tzinfo is None:
+        raise CaptureError(
+            f"captured_at {manifest.captured_at!r} has no time zone; add Z or an offset such as +02:00",
+            file="capture.json",
+            field="captured_at",
+        )
+    return moment
 
 
 def color_file_names(view: str) -> tuple[str, ...]:

@@ -3,13 +3,17 @@
 from __future__ import annotations
 
 import json
-from datetime import datetime
 
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
-from canopy_core.capture import CaptureManifest, color_file_names, expected_files, parse_manifest
-from canopy_core.errors import CaptureError
+from canopy_core.capture import (
+    CaptureManifest,
+    capture_time,
+    color_file_names,
+    expected_files,
+    parse_manifest,
+)
 from service.captures.schemas import CaptureOut
 from service.models import Capture, CaptureFile, Orchard, Row, Tree
 from service.problems import Conflict, NotFound
@@ -20,27 +24,7 @@ __all__ = [
     "create_capture",
     "get_capture",
     "missing_files",
-    "parse_captured_at",
 ]
-
-
-def parse_captured_at(manifest: CaptureManifest) -> datetime:
-    """The capture time, aware: the service orders captures, so it needs ISO 8601 with a time zone."""
-    try:
-        moment = datetime.fromisoformat(manifest.captured_at)
-    except ValueError as exc:
-        raise CaptureError(
-            f"captured_at {manifest.captured_at!r} is not an ISO 8601 time (e.g. 2026-11-20T08:31:00Z)",
-            file="capture.json",
-            field="captured_at",
-        ) from exc
-    if moment.tzinfo is None:
-        raise CaptureError(
-            f"captured_at {manifest.captured_at!r} has no time zone; add Z or an offset such as +02:00",
-            file="capture.json",
-            field="captured_at",
-        )
-    return moment
 
 
 def _tree(session: Session, manifest: CaptureManifest) -> Tree:
@@ -69,7 +53,7 @@ def create_capture(session: Session, body: bytes) -> tuple[Capture, bool]:
     stored. A different capture.json for that tree and time is a conflict, never a second capture.
     """
     manifest = parse_manifest(body)
-    captured_at = parse_captured_at(manifest)
+    captured_at = capture_time(manifest)
     document = json.loads(body)
     tree = _tree(session, manifest)
     existing = session.scalar(

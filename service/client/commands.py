@@ -1,0 +1,161 @@
+"""``canopy upload`` and ``canopy watch``: the uploader with progress bars, a results table and a loop.
+
+Progress bars (one for the row, one per capture, in bytes and files) appear on a terminal only; elsewhere
+each capture gets one line. Errors name the capture folder and the file, on stderr.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+from rich.console import Console
+from rich.progress import BarColumn, DownloadColumn, Progress, TaskID, TextColumn, TransferSpeedColumn
+from rich.table import Table
+
+from service.client.receipts import RECEIPT_NAME, Receipt
+from service.client.transport import ServerUnreachable, Transport
+from service.client.upload import (
+    Uploader,
+    UploadOutcome,
+    capture_files,
+    find_captures,
+    receipt_complete,
+    wait_for_jobs,
+)
+
+__all__ = ["run_upload", "run_watch"]
+
+
+def _pending_bytes(folder: Path, server: str) -> int:
+    acknowledged = Receipt.load(folder).for_server(server.rstrip("/")).files
+    return sum(
+        file.stat().st_size for path, file in capture_files(folder).items() if path not in acknowledged
+    )
+
+
+def _report(console: Console, errors: Console, outcome: UploadOutcome) -> None:
+    name = outcome.tree or str(outcome.folder)
+    if outcome.error is not None:
+        errors.print(f"[red]✗[/red] {outcome.folder}: {outcome.error}", highlight=False)
+        return
+    sent = f"{outcome.files_sent} file(s) sent ({outcome.bytes_sent / 1e6:.1f} MB)"
+    there = f", {outcome.files_already_there} already there" if outcome.files_already_there else ""
+    console.print(f"[green]✓[/green] {name}: {sent}{there}; job {outcome.job_id}", highlight=False)
+
+
+def _upload_all(
+    uploader: Uploader, folders: list[Path], console: Console, errors: Console
+) -> list[UploadOutcome]:
+    server = uploader.transport.server
+    sizes = {folder: _pending_bytes(folder, server) for folder in folders}
+    columns = (
+        TextColumn("{task.description}"),
+        BarColumn(),
+        DownloadColumn(),
+        TransferSpeedColumn(),
+        TextColumn("{task.fields[files]}"),
+    )
+    outcomes = []
+    with Progress(*columns, console=console, disable=not console.is_terminal, transient=False) as progress:
+        overall = progress.add_task("row", total=sum(sizes.values()), files=f"0/{len(folders)} captures")
+        for done, folder in enumerate(folders):
+            task = progress.add_task(folder.name, total=sizes[folder], files="")
+
+            def advance(size: int, task: TaskID = task) -> None:
+                progress.advance(task, size)
+                progress.advance(overall, size)
+
+            outcome = uploader.upload(folder, on_bytes=advance)
+            progress.update(overall, files=f"{done + 1}/{len(folders)} captures")
+            progress.remove_task(task)
+            _report(progress.console, errors, outcome)
+            outcomes.append(outcome)
+    return outcomes
+
+
+def _results_table(outcomes: list[UploadOutcome]) -> Table:
+    table = Table("tree", "state", "H (m)", "W (m)", "D (m)", "note")
+    for outcome in outcomes:
+        job = outcome.result.get("job", {})
+        measurement = outcome.result.get("measurement")
+        if measurement is not None:
+            values = [f"{measurement[key]:.3f}" for key in ("height_m", "width_m", "thickness_m")]
+            note = ""
+        else:
+            values = ["", "", ""]
+            error = job.get("error") or {}
+            note = error.get("message", outcome.result.get("refused", ""))
+            where = " ".join(str(error[key]) for key in ("view", "color") if error.get(key))
+            note = f"{where}: {note}" if where else note
+        table.add_row(outcome.tree, job.get("state", ""), *values, note)
+    return table
+
+
+def run_upload(root: Path, *, server: str, key: str, wait: bool, retry_for_s: float) -> int:
+    """Upload every capture under ``root``; with ``wait``, print each tree's H, W, D as jobs finish.
+
+    Returns the exit code: 0 when every capture is on the server (and, with ``wait``, measured), else 1.
+    """
+    console, errors = Console(), Console(stderr=True)
+    folders = find_captures(root)
+    if not folders:
+        errors.print(f"no capture folder (with capture.json) under {root}")
+        return 1
+    transport = Transport(server, key, retry_for_s=retry_for_s)
+    try:
+        outcomes = _upload_all(Uploader(transport), folders, console, errors)
+        failed = sum(outcome.error is not None for outcome in outcomes)
+        if wait:
+            finished = []
+            for outcome in wait_for_jobs(transport, outcomes):
+                finished.append(outcome)
+                state = outcome.result["job"]["state"]
+                console.print(f"{outcome.tree}: measurement {state}", highlight=False)
+                failed += state != "succeeded"
+            console.print(_results_table(finished))
+    except ServerUnreachable as exc:
+        errors.print(f"[red]✗[/red] waiting for the measurements: {exc}", highlight=False)
+        return 1
+    finally:
+        transport.close()
+    return 1 if failed else 0
+
+
+def _last_change(folder: Path) -> float:
+    """When a file of the capture folder last changed (the receipt aside), as a timestamp."""
+    times = [
+        path.stat().st_mtime for path in folder.rglob("*") if path.is_file() and path.name != RECEIPT_NAME
+    ]
+    return max(times, default=0.0)
+
+
+def run_watch(root: Path, *, server: str, key: str, interval_s: float, settle_s: float) -> None:
+    """Upload capture folders under ``root`` as they appear, until interrupted.
+
+    A folder is sent once none of its files has changed for ``settle_s`` (the capture software has
+    finished writing it). When the server cannot be reached, the folder is tried again on a later scan;
+    a folder the server or the checks refuse is reported once, and again only after it changes.
+    """
+    console, errors = Console(), Console(stderr=True)
+    transport = Transport(server, key, retry_for_s=max(interval_s, 30.0))
+    uploader = Uploader(transport)
+    reported: dict[Path, float] = {}
+    console.print(f"watching {root} for captures to send to {transport.server} (Ctrl-C stops)")
+    try:
+        while True:
+            for folder in find_captures(root):
+                if receipt_complete(folder, transport.server):
+                    continue
+                changed = _last_change(folder)
+                if time.time() - changed < settle_s or reported.get(folder) == changed:
+                    continue
+                outcome = uploader.upload(folder)
+                _report(console, errors, outcome)
+                if outcome.error is not None and not outcome.retryable:
+                    reported[folder] = changed
+            time.sleep(interval_s)
+    except KeyboardInterrupt:
+        console.print("stopped")
+    finally:
+        transport.close()
