@@ -1,0 +1,188 @@
+"""The capture client (`canopy upload`) against the real server, through a link that fails like orchard
+Wi-Fi: every capture arrives once, whole, and is measured; a killed upload resumes without re-sending."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import shutil
+import signal
+import sqlite3
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+
+from tests.service.flaky_proxy import Faults, FlakyProxy
+from tests.service.running import CANOPY, Service, capture_files
+
+TREES = ("T-a", "T-b", "T-c", "T-d")
+
+
+def _row(tree_capture: Path, into: Path, trees: tuple[str, ...]) -> Path:
+    """A row folder of captures of ``trees``: copies of one simulated capture, each labelled as its tree."""
+    row = into / "row"
+    for tree in trees:
+        folder = Path(shutil.copytree(tree_capture, row / tree))
+        manifest = json.loads((folder / "capture.json").read_text())
+        (folder / "capture.json").write_text(json.dumps({**manifest, "tree": tree}))
+    return row
+
+
+def _upload(service: Service, server: str, row: Path, *extra: str) -> subprocess.Popen[str]:
+    return subprocess.Popen(
+        [CANOPY, "upload", str(row), "--server", server, "--key", service.admin_key, *extra],
+        env=service.environment,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+
+
+def _server_port(service: Service) -> int:
+    return int(service.url.rsplit(":", 1)[1])
+
+
+def _stored(service: Service) -> dict[str, dict[str, str]]:
+    """Per tree, the files the server recorded (path -> SHA-256); fails if a tree has two captures."""
+    with sqlite3.connect(service.data_dir / "canopy.db") as database:
+        captures = database.execute(
+            "SELECT trees.name, captures.id FROM captures JOIN trees ON trees.id = captures.tree_id"
+        ).fetchall()
+        files = database.execute("SELECT capture_id, path, sha256 FROM capture_files").fetchall()
+    trees = [tree for tree, _ in captures]
+    assert len(trees) == len(set(trees)), f"a tree has two captures: {trees}"
+    by_capture = {capture_id: tree for tree, capture_id in captures}
+    stored: dict[str, dict[str, str]] = {tree: {} for tree in trees}
+    for capture_id, path, sha256 in files:
+        stored[by_capture[capture_id]][path] = sha256
+    return stored
+
+
+def _local(row: Path, tree: str) -> dict[str, str]:
+    return {path: hashlib.sha256(data).hexdigest() for path, data in capture_files(row / tree).items()}
+
+
+def _jobs(service: Service) -> list[tuple[str, str]]:
+    with sqlite3.connect(service.data_dir / "canopy.db") as database:
+        return database.execute(
+            "SELECT trees.name, jobs.state FROM jobs JOIN captures ON captures.id = jobs.capture_id "
+            "JOIN trees ON trees.id = captures.tree_id ORDER BY trees.name"
+        ).fetchall()
+
+
+def test_upload_over_a_failing_link_stores_every_capture_once_whole_and_measured(
+    service: Service, tree_capture: Path, tmp_path: Path
+) -> None:
+    service.start_worker()
+    row = _row(tree_capture, tmp_path, TREES)
+    proxy = FlakyProxy(
+        _server_port(service),
+        Faults(cut_body=0.2, lose_response=0.15, refuse_after_requests=12, refuse_s=2.0, seed=5),
+    )
+    try:
+        client = _upload(service, proxy.url, row, "--wait", "--retry-for", "120")
+        stdout, stderr = client.communicate(timeout=600)
+    finally:
+        proxy.close()
+    assert client.returncode == 0, stderr
+    assert (proxy.cut, proxy.lost, proxy.refused) > (0, 0, 0) and min(
+        proxy.cut, proxy.lost, proxy.refused
+    ) > 0
+    stored = _stored(service)
+    assert sorted(stored) == sorted(TREES)
+    for tree in TREES:
+        assert stored[tree] == _local(row, tree), tree
+    assert _jobs(service) == [(tree, "succeeded") for tree in TREES]
+    for tree in TREES:
+        assert tree in stdout
+
+
+def test_killed_upload_resumes_without_resending_acknowledged_files(
+    service: Service, tree_capture: Path, tmp_path: Path
+) -> None:
+    row = _row(tree_capture, tmp_path, TREES[:3])
+    slow = FlakyProxy(_server_port(service), Faults(bytes_per_s=2_000_000))
+    try:
+        first = _upload(service, slow.url, row)
+        deadline = time.monotonic() + 120
+        while sum(len(files) for files in _stored(service).values()) < 4:
+            assert first.poll() is None, "the upload finished before it could be killed"
+            assert time.monotonic() < deadline
+            time.sleep(0.02)
+        first.send_signal(signal.SIGKILL)
+        first.wait()
+        acknowledged_before = {tree: set(files) for tree, files in _stored(service).items()}
+    finally:
+        slow.close()
+    fast = FlakyProxy(_server_port(service))
+    try:
+        second = _upload(service, fast.url, row)
+        _, stderr = second.communicate(timeout=300)
+        resent = fast.puts()
+    finally:
+        fast.close()
+    assert second.returncode == 0, stderr
+    assert 4 <= sum(len(files) for files in acknowledged_before.values()) < 18
+    stored = _stored(service)
+    with sqlite3.connect(service.data_dir / "canopy.db") as database:
+        capture_of = dict(
+            database.execute("SELECT trees.name, captures.id FROM captures JOIN trees ON trees.id = tree_id")
+        )
+    for tree, files in acknowledged_before.items():
+        for path in files:
+            assert resent[f"/v1/captures/{capture_of[tree]}/files/{path}"] == 0, (tree, path)
+    # A file in flight at the kill may be committed after it, and then not sent again either.
+    assert sum(resent.values()) <= 18 - sum(len(files) for files in acknowledged_before.values())
+    for tree in TREES[:3]:
+        assert stored[tree] == _local(row, tree)
+    assert [tree for tree, _state in _jobs(service)] == list(TREES[:3])
+
+
+def test_second_upload_of_a_finished_row_sends_nothing(
+    service: Service, tree_capture: Path, tmp_path: Path
+) -> None:
+    row = _row(tree_capture, tmp_path, TREES[:2])
+    proxy = FlakyProxy(_server_port(service))
+    try:
+        assert _upload(service, proxy.url, row).wait(timeout=300) == 0
+        before = sum(proxy.reached_server.values())
+        assert _upload(service, proxy.url, row).wait(timeout=300) == 0
+        after = sum(proxy.reached_server.values())
+    finally:
+        proxy.close()
+    assert before > 0
+    assert after == before
+
+
+def test_invalid_capture_is_reported_and_not_sent_while_the_others_are(
+    service: Service, tree_capture: Path, tmp_path: Path
+) -> None:
+    row = _row(tree_capture, tmp_path, TREES[:2])
+    (row / "T-b" / "views" / "2" / "depth.png").write_bytes(b"\x89PNG\r\n\x1a\n truncated")
+    client = _upload(service, service.url, row)
+    _, stderr = client.communicate(timeout=300)
+    assert client.returncode == 1
+    assert "T-b" in stderr and "views/2/depth.png" in stderr
+    assert sorted(_stored(service)) == ["T-a"]
+
+
+@pytest.mark.parametrize("scopes", [("read",)])
+def test_refusal_is_shown_plainly_with_the_capture_and_not_retried(
+    service: Service, tree_capture: Path, tmp_path: Path, scopes: tuple[str, ...]
+) -> None:
+    key = service.create_key(*scopes)
+    row = _row(tree_capture, tmp_path, TREES[:1])
+    started = time.monotonic()
+    done = subprocess.run(
+        [CANOPY, "upload", str(row), "--server", service.url, "--key", key],
+        env=service.environment,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+    assert done.returncode == 1
+    assert "T-a" in done.stderr and "capture.json" in done.stderr and "HTTP 403" in done.stderr
+    assert time.monotonic() - started < 60  # no retrying for --retry-for's 300 s on a 403
