@@ -45,6 +45,10 @@ class FlakyProxy:
         self.port = free_port()
         self.url = f"http://127.0.0.1:{self.port}"
         self.reached_server: Counter[tuple[str, str]] = Counter()
+        self.reached_at: list[float] = []
+        """``time.monotonic()`` of each request that reached the server whole."""
+        self.refusals: list[tuple[float, float]] = []
+        """Start and end (monotonic) of each time every connection was refused."""
         self.cut = 0
         self.lost = 0
         self.refused = 0
@@ -52,6 +56,7 @@ class FlakyProxy:
         self._lock = threading.Lock()
         self._refuse_until = 0.0
         self._refused_once = False
+        self._open: set[socket.socket] = set()
         self._listener = socket.create_server(("127.0.0.1", self.port))
         self._stopping = False
         threading.Thread(target=self._accept, daemon=True).start()
@@ -59,6 +64,17 @@ class FlakyProxy:
     def close(self) -> None:
         self._stopping = True
         self._listener.close()
+
+    def refuse_for(self, seconds: float) -> None:
+        """Take the link down now for ``seconds``: open connections die, new ones are refused."""
+        with self._lock:
+            self._go_down(seconds)
+
+    def _go_down(self, seconds: float) -> None:
+        self._refuse_until = time.monotonic() + seconds
+        self.refusals.append((time.monotonic(), self._refuse_until))
+        for connection in self._open:
+            _reset(connection)
 
     def puts(self) -> Counter[str]:
         """How many PUT requests of each file path reached the server whole."""
@@ -91,12 +107,16 @@ class FlakyProxy:
             _reset(client)
             return
         lose = threading.Event()
+        with self._lock:
+            self._open.add(client)
         threading.Thread(target=self._responses, args=(upstream, client, lose), daemon=True).start()
         try:
             self._requests(client, upstream, lose)
         except OSError:
             pass
         finally:
+            with self._lock:
+                self._open.discard(client)
             client.close()
 
     def _fate(self) -> str:
@@ -158,11 +178,12 @@ class FlakyProxy:
                 sent += len(piece)
             with self._lock:
                 self.reached_server[(method, path)] += 1
+                self.reached_at.append(time.monotonic())
                 total = sum(self.reached_server.values())
                 refuse = self.faults.refuse_after_requests
                 if refuse is not None and total >= refuse and not self._refused_once:
                     self._refused_once = True
-                    self._refuse_until = time.monotonic() + self.faults.refuse_s
+                    self._go_down(self.faults.refuse_s)
             if fate == "lose":
                 with self._lock:
                     self.lost += 1

@@ -10,6 +10,7 @@ import signal
 import sqlite3
 import subprocess
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -186,3 +187,43 @@ def test_refusal_is_shown_plainly_with_the_capture_and_not_retried(
     assert done.returncode == 1
     assert "T-a" in done.stderr and "capture.json" in done.stderr and "HTTP 403" in done.stderr
     assert time.monotonic() - started < 60  # no retrying for --retry-for's 300 s on a 403
+
+
+def test_watch_sends_captures_as_they_appear_and_once_the_network_is_back(
+    service: Service, tree_capture: Path, tmp_path: Path
+) -> None:
+    row = _row(tree_capture, tmp_path, TREES[:2])
+    day = tmp_path / "today"
+    day.mkdir()
+    proxy = FlakyProxy(_server_port(service))
+    proxy.refuse_for(3.0)  # the laptop starts out of range
+    watcher = subprocess.Popen(
+        [CANOPY, "watch", str(day), "--server", proxy.url, "--key", service.admin_key]
+        + ["--interval", "0.2", "--settle", "0.5"],
+        env=service.environment,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    try:
+        shutil.copytree(row / "T-a", day / "T-a")
+        _wait_for(lambda: sorted(_stored(service)) == ["T-a"] and len(_stored(service)["T-a"]) == 6)
+        shutil.copytree(row / "T-b", day / "T-b")
+        _wait_for(lambda: sorted(_stored(service)) == ["T-a", "T-b"] and len(_stored(service)["T-b"]) == 6)
+        _wait_for(lambda: len(_jobs(service)) == 2)
+    finally:
+        watcher.send_signal(signal.SIGINT)
+        output, _ = watcher.communicate(timeout=60)
+        proxy.close()
+    assert proxy.refused > 0
+    assert [tree for tree, _ in _jobs(service)] == ["T-a", "T-b"]
+    for tree in ("T-a", "T-b"):
+        assert _stored(service)[tree] == _local(row, tree)
+    assert "T-a" in output and "T-b" in output
+
+
+def _wait_for(condition: Callable[[], bool], *, timeout_s: float = 120.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        assert time.monotonic() < deadline, "the condition never held"
+        time.sleep(0.1)
