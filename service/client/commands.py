@@ -60,10 +60,14 @@ def _upload_all(
     with Progress(*columns, console=console, disable=not console.is_terminal, transient=False) as progress:
         overall = progress.add_task("row", total=sum(sizes.values()), files=f"0/{len(folders)} captures")
         for done, folder in enumerate(folders):
-            task = progress.add_task(folder.name, total=sizes[folder], files="")
+            sending = len(capture_files(folder))
+            task = progress.add_task(folder.name, total=sizes[folder], files=f"0/{sending} files")
+            sent = 0
 
-            def advance(size: int, task: TaskID = task) -> None:
-                progress.advance(task, size)
+            def advance(size: int, task: TaskID = task, sending: int = sending) -> None:
+                nonlocal sent
+                sent += 1
+                progress.update(task, advance=size, files=f"{sent}/{sending} files")
                 progress.advance(overall, size)
 
             outcome = uploader.upload(folder, on_bytes=advance)

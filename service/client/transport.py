@@ -52,6 +52,8 @@ class Transport:
         Give a failing request up after this long (then :class:`ServerUnreachable`).
     timeout_s
         Per attempt: connect, and each read or write of the connection.
+    sleep, clock
+        How to wait and tell the time (``time.sleep``, ``time.monotonic``; tests give a simulated pair).
     """
 
     def __init__(
@@ -64,6 +66,7 @@ class Transport:
         first_backoff_s: float = 0.25,
         max_backoff_s: float = 15.0,
         sleep: Callable[[float], None] = time.sleep,
+        clock: Callable[[], float] = time.monotonic,
     ) -> None:
         self.server = server.rstrip("/")
         self._client = httpx.Client(
@@ -75,6 +78,7 @@ class Transport:
         self._first_backoff_s = first_backoff_s
         self._max_backoff_s = max_backoff_s
         self._sleep = sleep
+        self._clock = clock
 
     def sleep(self, seconds: float) -> None:
         """Pause (through the sleep this transport was given, so that tests can count it)."""
@@ -86,7 +90,7 @@ class Transport:
 
     def request(self, method: str, path: str, **options: Any) -> httpx.Response:
         """Send a request until it gets a final answer: a 2xx/3xx response, or RequestRefused."""
-        started = time.monotonic()
+        started = self._clock()
         attempt = 0
         while True:
             try:
@@ -102,7 +106,7 @@ class Transport:
                 wait_s = _retry_after_s(response)
             backoff_s = random.uniform(0, min(self._max_backoff_s, self._first_backoff_s * 2**attempt))
             wait_s = max(wait_s or 0.0, backoff_s)
-            if time.monotonic() + wait_s - started > self.retry_for_s:
+            if self._clock() + wait_s - started > self.retry_for_s:
                 raise ServerUnreachable(f"{method} {path}: {problem} (gave up after {self.retry_for_s:g} s)")
             self._sleep(wait_s)
             attempt += 1

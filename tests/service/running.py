@@ -20,6 +20,8 @@ from typing import Any
 
 import httpx
 
+from service.client.upload import capture_files as files_to_send
+
 CANOPY = str(Path(sys.executable).parent / "canopy")
 START_TIMEOUT_S = 60.0
 
@@ -141,16 +143,9 @@ def _start_server(data_dir: Path, environment: dict[str, str], port: int) -> sub
         time.sleep(0.1)
 
 
-CAPTURE_FILES = ("camera.json", "depth.png", "color.png", "color.jpg")
-
-
 def capture_files(folder: Path) -> dict[str, bytes]:
-    """The files of a capture folder to upload, by their path in it (not capture.json or ground truth)."""
-    return {
-        path.relative_to(folder).as_posix(): path.read_bytes()
-        for path in sorted(folder.glob("views/*/*"))
-        if path.name in CAPTURE_FILES
-    }
+    """The bytes of the files the capture client sends, by their path in the capture folder."""
+    return {path: file.read_bytes() for path, file in files_to_send(folder).items()}
 
 
 def upload_capture(client: httpx.Client, folder: Path) -> int:
