@@ -4,16 +4,18 @@ client takes to resume once the network is back after a drop.
 Starts the real `canopy serve` (no worker: measuring is not what is timed here) on a temporary SQLite file,
 simulates ``--count`` two-view captures, and runs the real `canopy upload` on the row:
 1. straight to the server: wall time and MB/s (the process's whole run: start, checks, requests);
-2. through a proxy that refuses every connection for ``--outage-s`` seconds after a quarter of the
-   requests: the resume delay is the time from the network's return to the next request reaching the
-   server (the client is then sleeping in its backoff).
+2. ``--outages`` times, as a new orchard, through a proxy that goes down for ``--outage-s`` seconds after a
+   quarter of the requests (open connections reset, new ones refused): the resume delay is the time from
+   the network's return to the next request reaching the server (the client sleeps in its backoff).
 
-    .venv/bin/python bench/upload.py [--count 20] [--seed 11] [--outage-s 5]
+    .venv/bin/python bench/upload.py [--count 20] [--seed 11] [--outage-s 5] [--outages 5]
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -23,6 +25,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the test harness starts the processes
 
 from canopy_core.simulate import simulate_captures
+from service.client.receipts import RECEIPT_NAME
 from tests.service.flaky_proxy import Faults, FlakyProxy
 from tests.service.running import CANOPY, Service, capture_files, start_service
 
@@ -38,45 +41,54 @@ def _upload(service: Service, server: str, row: Path) -> float:
     return time.perf_counter() - started
 
 
+def _relabel(row: Path, orchard: str) -> None:
+    """Make the row's captures new to the server: another orchard, no receipts."""
+    for manifest in row.glob("*/capture.json"):
+        document = json.loads(manifest.read_text())
+        manifest.write_text(json.dumps({**document, "orchard": orchard}))
+    for receipt in row.glob(f"*/{RECEIPT_NAME}"):
+        receipt.unlink()
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--count", type=int, default=20)
     parser.add_argument("--seed", type=int, default=11)
     parser.add_argument("--outage-s", type=float, default=5.0)
+    parser.add_argument("--outages", type=int, default=5, help="outage runs, for the median resume delay")
     options = parser.parse_args()
     with tempfile.TemporaryDirectory(prefix="canopy-upload-bench-") as scratch:
-        rows = [Path(scratch) / name for name in ("direct", "outage")]
-        for row in rows:
-            simulate_captures(row, seed=options.seed, count=options.count)
-        size_bytes = sum(
-            len(data) for capture in rows[0].iterdir() for data in capture_files(capture).values()
-        )
-        for index, row in enumerate(rows):  # a second orchard for the outage run: nothing there yet
-            for manifest in row.glob("*/capture.json"):
-                manifest.write_text(manifest.read_text().replace("Simulated block", f"Block {index}"))
+        row = Path(scratch) / "row"
+        simulate_captures(row, seed=options.seed, count=options.count)
+        files = [data for capture in row.iterdir() for data in capture_files(capture).values()]
+        size_bytes = sum(len(data) for data in files)
         service = start_service(Path(scratch))
         try:
-            elapsed_s = _upload(service, service.url, rows[0])
+            elapsed_s = _upload(service, service.url, row)
             print(
-                f"{options.count} captures, {size_bytes / 1e6:.1f} MB, {6 * options.count} files: "
+                f"{options.count} captures, {size_bytes / 1e6:.1f} MB, {len(files)} files: "
                 f"{elapsed_s:.2f} s, {size_bytes / 1e6 / elapsed_s:.1f} MB/s (whole `canopy upload` run)"
             )
             requests = options.count * 9
-            proxy = FlakyProxy(
-                int(service.url.rsplit(":", 1)[1]),
-                Faults(refuse_after_requests=requests // 4, refuse_s=options.outage_s),
-            )
-            try:
-                elapsed_s = _upload(service, proxy.url, rows[1])
-            finally:
-                proxy.close()
-            [(_start, back)] = proxy.refusals
-            resumed = min(moment for moment in proxy.reached_at if moment > back)
-            print(
-                f"with a {options.outage_s:g} s outage after {requests // 4} requests: "
-                f"{elapsed_s:.2f} s in all; {proxy.refused} connection(s) refused; "
-                f"first request after the network came back: {resumed - back:.2f} s later"
-            )
+            delays_s = []
+            for outage in range(options.outages):
+                _relabel(row, f"Outage {outage}")
+                proxy = FlakyProxy(
+                    int(service.url.rsplit(":", 1)[1]),
+                    Faults(refuse_after_requests=requests // 4, refuse_s=options.outage_s, seed=outage),
+                )
+                try:
+                    elapsed_s = _upload(service, proxy.url, row)
+                finally:
+                    proxy.close()
+                [(_start, back)] = proxy.refusals
+                delays_s.append(min(moment for moment in proxy.reached_at if moment > back) - back)
+                print(
+                    f"outage {outage + 1}: {options.outage_s:g} s after {requests // 4} requests, "
+                    f"{proxy.refused} connection(s) refused; upload {elapsed_s:.2f} s in all; "
+                    f"first request {delays_s[-1]:.2f} s after the network came back"
+                )
+            print(f"resume after the network is back: median {statistics.median(delays_s):.2f} s")
         finally:
             service.stop()
 

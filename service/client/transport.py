@@ -52,6 +52,9 @@ class Transport:
         Give a failing request up after this long (then :class:`ServerUnreachable`).
     timeout_s
         Per attempt: connect, and each read or write of the connection.
+    first_backoff_s, max_backoff_s
+        The wait before the first retry, doubling up to the cap; each wait is drawn uniformly below it
+        (full jitter). The cap bounds how late the client notices that the network is back.
     sleep, clock
         How to wait and tell the time (``time.sleep``, ``time.monotonic``; tests give a simulated pair).
     """
@@ -64,7 +67,7 @@ class Transport:
         retry_for_s: float = 300.0,
         timeout_s: float = 30.0,
         first_backoff_s: float = 0.25,
-        max_backoff_s: float = 15.0,
+        max_backoff_s: float = 5.0,
         sleep: Callable[[float], None] = time.sleep,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
