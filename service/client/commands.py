@@ -14,11 +14,11 @@ from rich.progress import BarColumn, DownloadColumn, Progress, TaskID, TextColum
 from rich.table import Table
 
 from service.client.receipts import RECEIPT_NAME, Receipt
-from service.client.transport import ServerUnreachable, Transport
+from service.client.transport import RequestRefused, ServerUnreachable, Transport
 from service.client.upload import (
     Uploader,
     UploadOutcome,
-    capture_files,
+    files_to_send,
     find_captures,
     receipt_complete,
     wait_for_jobs,
@@ -30,7 +30,7 @@ __all__ = ["run_upload", "run_watch"]
 def _pending_bytes(folder: Path, server: str) -> int:
     acknowledged = Receipt.load(folder).for_server(server.rstrip("/")).files
     return sum(
-        file.stat().st_size for path, file in capture_files(folder).items() if path not in acknowledged
+        file.stat().st_size for path, file in files_to_send(folder).items() if path not in acknowledged
     )
 
 
@@ -60,7 +60,7 @@ def _upload_all(
     with Progress(*columns, console=console, disable=not console.is_terminal, transient=False) as progress:
         overall = progress.add_task("row", total=sum(sizes.values()), files=f"0/{len(folders)} captures")
         for done, folder in enumerate(folders):
-            sending = len(capture_files(folder))
+            sending = len(files_to_send(folder))
             task = progress.add_task(folder.name, total=sizes[folder], files=f"0/{sending} files")
             sent = 0
 
@@ -101,63 +101,78 @@ def run_upload(root: Path, *, server: str, key: str, wait: bool, retry_for_s: fl
 
     Returns the exit code: 0 when every capture is on the server (and, with ``wait``, measured), else 1.
     """
-    console, errors = Console(), Console(stderr=True)
+    console, errors = Console(soft_wrap=True), Console(stderr=True, soft_wrap=True)
     folders = find_captures(root)
     if not folders:
         errors.print(f"no capture folder (with capture.json) under {root}")
         return 1
     transport = Transport(server, key, retry_for_s=retry_for_s)
+    finished: list[UploadOutcome] = []
     try:
         outcomes = _upload_all(Uploader(transport), folders, console, errors)
         failed = sum(outcome.error is not None for outcome in outcomes)
         if wait:
-            finished = []
             for outcome in wait_for_jobs(transport, outcomes):
                 finished.append(outcome)
                 state = outcome.result["job"]["state"]
                 console.print(f"{outcome.tree}: measurement {state}", highlight=False)
                 failed += state != "succeeded"
-            console.print(_results_table(finished))
-    except ServerUnreachable as exc:
+    except (ServerUnreachable, RequestRefused) as exc:
         errors.print(f"[red]✗[/red] waiting for the measurements: {exc}", highlight=False)
-        return 1
+        failed = 1
     finally:
         transport.close()
+        if finished:
+            console.print(_results_table(finished))
     return 1 if failed else 0
 
 
-def _last_change(folder: Path) -> float:
-    """When a file of the capture folder last changed (the receipt aside), as a timestamp."""
-    times = [
-        path.stat().st_mtime for path in folder.rglob("*") if path.is_file() and path.name != RECEIPT_NAME
-    ]
-    return max(times, default=0.0)
+def _snapshot(folder: Path) -> tuple[tuple[str, int, int], ...]:
+    """Every file of the folder (the receipt aside) with its size and time: equal snapshots across scans
+    mean nothing is being written, whatever the files' own times say (a copy keeps the originals')."""
+    ours = RECEIPT_NAME.removesuffix(".json")  # the receipt and its temporary files
+    return tuple(
+        (path.relative_to(folder).as_posix(), status.st_size, status.st_mtime_ns)
+        for path in sorted(folder.rglob("*"))
+        if not path.name.startswith(ours) and path.is_file() and (status := path.stat())
+    )
 
 
 def run_watch(root: Path, *, server: str, key: str, interval_s: float, settle_s: float) -> None:
     """Upload capture folders under ``root`` as they appear, until interrupted.
 
-    A folder is sent once none of its files has changed for ``settle_s`` (the capture software has
-    finished writing it). When the server cannot be reached, the folder is tried again on a later scan;
-    a folder the server or the checks refuse is reported once, and again only after it changes.
+    A folder is sent once it has stayed the same (its files, sizes and times) for ``settle_s`` (the
+    capture software has finished writing it). While the server cannot be reached, the scan stops and
+    starts again at the next one; a folder the checks or the server refuse is reported once, and again
+    only after it changes. A folder that changes after its upload is looked at again.
     """
-    console, errors = Console(), Console(stderr=True)
+    console, errors = Console(soft_wrap=True), Console(stderr=True, soft_wrap=True)
     transport = Transport(server, key, retry_for_s=max(interval_s, 30.0))
-    uploader = Uploader(transport)
-    reported: dict[Path, float] = {}
+    uploader = Uploader(transport, verify_done=False)
+    seen: dict[Path, tuple[tuple[tuple[str, int, int], ...], float]] = {}
+    refused: dict[Path, tuple[tuple[str, int, int], ...]] = {}
     console.print(f"watching {root} for captures to send to {transport.server} (Ctrl-C stops)")
     try:
         while True:
             for folder in find_captures(root):
                 if receipt_complete(folder, transport.server):
                     continue
-                changed = _last_change(folder)
-                if time.time() - changed < settle_s or reported.get(folder) == changed:
+                snapshot = _snapshot(folder)
+                if seen.get(folder, ((), 0.0))[0] != snapshot:
+                    seen[folder] = (snapshot, time.monotonic())
+                if time.monotonic() - seen[folder][1] < settle_s or refused.get(folder) == snapshot:
                     continue
-                outcome = uploader.upload(folder)
+                try:
+                    outcome = uploader.upload(folder)
+                except Exception as exc:  # one folder's surprise must not stop a day's watching
+                    errors.print(f"[red]✗[/red] {folder}: {type(exc).__name__}: {exc}", highlight=False)
+                    refused[folder] = snapshot
+                    continue
                 _report(console, errors, outcome)
-                if outcome.error is not None and not outcome.retryable:
-                    reported[folder] = changed
+                if outcome.retryable:
+                    break  # the server is out of reach: the other folders would only wait for it too
+                if outcome.error is not None:
+                    refused[folder] = snapshot
             time.sleep(interval_s)
     except KeyboardInterrupt:
         console.print("stopped")

@@ -25,6 +25,9 @@ class ServerReceipt(BaseModel):
     capture_id: int | None = None
     files: dict[str, str] = Field(default_factory=dict, description="path -> SHA-256 hex, acknowledged")
     job_id: int | None = None
+    fingerprint: str | None = Field(
+        None, description="The folder when its job was started (upload.fingerprint)"
+    )
 
 
 class Receipt(BaseModel):

@@ -23,7 +23,7 @@ _RETRIED_STATUSES = {408, 429}
 
 
 class RequestRefused(Exception):
-    """The server refused a request for good (a 4xx other than 408/429): what it said, plainly."""
+    """The server refused a request for good (a 4xx other than 408/429, or a redirect): what it said."""
 
     def __init__(self, response: httpx.Response) -> None:
         self.status = response.status_code
@@ -32,6 +32,8 @@ class RequestRefused(Exception):
         except ValueError:
             self.problem = {"detail": response.text[:500]}
         detail = self.problem.get("detail") or self.problem.get("title") or response.reason_phrase
+        if 300 <= self.status < 400:
+            detail = f"redirected to {response.headers.get('location')}; is --server the service's address?"
         super().__init__(f"HTTP {self.status}: {detail}")
 
 
@@ -92,8 +94,12 @@ class Transport:
         self._client.close()
 
     def request(self, method: str, path: str, **options: Any) -> httpx.Response:
-        """Send a request until it gets a final answer: a 2xx/3xx response, or RequestRefused."""
-        started = self._clock()
+        """Send a request until it gets a final answer: a 2xx response, or RequestRefused.
+
+        ``retry_for_s`` counts from the request's first failure, so a long transfer that fails near its end
+        is still retried.
+        """
+        first_failure: float | None = None
         attempt = 0
         while True:
             try:
@@ -101,15 +107,19 @@ class Transport:
             except httpx.TransportError as exc:
                 problem, wait_s = f"{type(exc).__name__}: {exc}", None
             else:
-                if response.status_code < 400:
+                if 200 <= response.status_code < 300:
                     return response
+                if response.status_code < 400:
+                    # A redirect (to https, or a Wi-Fi login page) is not the API answering.
+                    raise RequestRefused(response)
                 if response.status_code < 500 and response.status_code not in _RETRIED_STATUSES:
                     raise RequestRefused(response)
                 problem = f"HTTP {response.status_code}"
                 wait_s = _retry_after_s(response)
             backoff_s = random.uniform(0, min(self._max_backoff_s, self._first_backoff_s * 2**attempt))
             wait_s = max(wait_s or 0.0, backoff_s)
-            if self._clock() + wait_s - started > self.retry_for_s:
+            first_failure = self._clock() if first_failure is None else first_failure
+            if self._clock() + wait_s - first_failure > self.retry_for_s:
                 raise ServerUnreachable(f"{method} {path}: {problem} (gave up after {self.retry_for_s:g} s)")
             self._sleep(wait_s)
             attempt += 1

@@ -18,7 +18,7 @@ from typing import Any
 
 from canopy_core.capture import capture_time, load_capture, parse_manifest
 from canopy_core.errors import CaptureError
-from service.client.receipts import RECEIPT_NAME, Receipt
+from service.client.receipts import RECEIPT_NAME, Receipt, ServerReceipt
 from service.client.transport import RequestRefused, ServerUnreachable, Transport
 
 __all__ = [
@@ -26,7 +26,9 @@ __all__ = [
     "UploadOutcome",
     "Uploader",
     "capture_files",
+    "files_to_send",
     "find_captures",
+    "fingerprint",
     "receipt_complete",
     "wait_for_jobs",
 ]
@@ -42,13 +44,37 @@ def find_captures(root: Path) -> list[Path]:
     return sorted(path.parent for path in root.rglob("capture.json") if path.is_file())
 
 
-def capture_files(folder: Path) -> dict[str, Path]:
-    """The files of a capture folder to send, by their path inside it (``views/1/depth.png``)."""
+def capture_files(folder: Path, views: list[str]) -> dict[str, Path]:
+    """The files of the capture's ``views`` to send, by their path inside it (``views/1/depth.png``).
+
+    Only the views capture.json lists: a discarded take left in ``views/`` is not the capture's.
+    """
     return {
-        path.relative_to(folder).as_posix(): path
-        for path in sorted(folder.glob("views/*/*"))
-        if path.name in UPLOADED_NAMES and path.is_file()
+        f"{view}/{name}": folder / view / name
+        for view in views
+        for name in UPLOADED_NAMES
+        if (folder / view / name).is_file()
     }
+
+
+def files_to_send(folder: Path) -> dict[str, Path]:
+    """:func:`capture_files` of the views the folder's capture.json lists (none when it is unreadable)."""
+    try:
+        return capture_files(folder, parse_manifest((folder / "capture.json").read_bytes()).views)
+    except (CaptureError, OSError):
+        return {}
+
+
+def fingerprint(folder: Path, files: dict[str, Path]) -> str:
+    """What the capture folder holds now: capture.json's bytes and each file's path, size and time.
+
+    Stored with the job in the receipt: a folder that changed after its upload is looked at again.
+    """
+    digest = hashlib.sha256((folder / "capture.json").read_bytes())
+    for path, file in sorted(files.items()):
+        status = file.stat()
+        digest.update(f"\0{path}\0{status.st_size}\0{status.st_mtime_ns}".encode())
+    return digest.hexdigest()
 
 
 def _content_digest(data: bytes) -> tuple[str, str]:
@@ -73,6 +99,10 @@ class UploadOutcome:
     result: dict[str, Any] = field(default_factory=dict)
 
 
+_DIGEST_RESENDS = 3
+"""A file whose bytes arrive damaged (400 digest_mismatch) is sent again this many times at most."""
+
+
 class Uploader:
     """Uploads capture folders to one server.
 
@@ -80,10 +110,15 @@ class Uploader:
     ----------
     transport
         The retrying HTTP client of the server.
+    verify_done
+        Before skipping a capture whose receipt says it is done, ask the server that it still has it (one
+        request; a server that lost it, or was replaced, gets the capture again). ``watch`` trusts the
+        receipt to stay quiet between scans.
     """
 
-    def __init__(self, transport: Transport) -> None:
+    def __init__(self, transport: Transport, *, verify_done: bool = True) -> None:
         self.transport = transport
+        self.verify_done = verify_done
 
     def upload(self, folder: Path, *, on_bytes: Callable[[int], None] | None = None) -> UploadOutcome:
         """Check and send one capture folder; the outcome says what happened, never raises for the capture.
@@ -91,51 +126,40 @@ class Uploader:
         ``on_bytes`` is called with each file's size as the server acknowledges it (for progress bars).
         """
         outcome = UploadOutcome(folder=folder)
-        receipt = Receipt.load(folder)
-        mine = receipt.for_server(self.transport.server)
-        try:
-            manifest = parse_manifest((folder / "capture.json").read_bytes())
-            outcome.tree = f"{manifest.orchard} / {manifest.row} / {manifest.tree}"
-            if mine.job_id is not None:
-                # Everything was acknowledged, the job included: nothing to check or ask again.
-                outcome.capture_id, outcome.job_id = mine.capture_id, mine.job_id
-                outcome.files_already_there = len(mine.files)
-                return outcome
-            capture_time(load_capture(folder).manifest)
-        except CaptureError as exc:
-            outcome.error = f"not sent, the capture is invalid: {exc}"
-            return outcome
-        except OSError as exc:
-            outcome.error = f"not sent, capture.json cannot be read: {exc}"
-            return outcome
         step = "capture.json"
         try:
-            created = self.transport.request(
-                "POST", "/v1/captures", content=(folder / "capture.json").read_bytes()
-            )
+            receipt = Receipt.load(folder)
+            mine = receipt.for_server(self.transport.server)
+            manifest = parse_manifest((folder / "capture.json").read_bytes())
+            outcome.tree = f"{manifest.orchard} / {manifest.row} / {manifest.tree}"
+            files = capture_files(folder, manifest.views)
+            now = fingerprint(folder, files)
+            if mine.job_id is not None and mine.fingerprint == now and self._still_there(mine.capture_id):
+                outcome.capture_id, outcome.job_id = mine.capture_id, mine.job_id
+                outcome.files_already_there = len(files)
+                return outcome
+            capture_time(load_capture(folder).manifest)
+            capture_json = (folder / "capture.json").read_bytes()
+            created = self.transport.request("POST", "/v1/captures", content=capture_json)
+            if created.json()["id"] != mine.capture_id:
+                # A capture new to this server (or a server that lost it): nothing of the receipt holds.
+                receipt.servers[self.transport.server] = mine = ServerReceipt()
             outcome.capture_id = mine.capture_id = int(created.json()["id"])
             receipt.save(folder)
             status = self.transport.request("GET", f"/v1/captures/{mine.capture_id}").json()
             held = set(status["files_received"])
-            for path, file in capture_files(folder).items():
+            for path, file in files.items():
                 if path in held:
                     outcome.files_already_there += 1
                     continue
                 step = path
-                data = file.read_bytes()
-                sha256, digest_header = _content_digest(data)
-                self.transport.request(
-                    "PUT",
-                    f"/v1/captures/{mine.capture_id}/files/{path}",
-                    content=data,
-                    headers={"Content-Digest": digest_header},
-                )
-                mine.files[path] = sha256
+                size = self._send(mine.capture_id, path, file)
+                mine.files[path] = hashlib.sha256(file.read_bytes()).hexdigest()
                 receipt.save(folder)
                 outcome.files_sent += 1
-                outcome.bytes_sent += len(data)
+                outcome.bytes_sent += size
                 if on_bytes is not None:
-                    on_bytes(len(data))
+                    on_bytes(size)
             step = "the measurement job"
             job = self.transport.request(
                 "POST",
@@ -143,14 +167,48 @@ class Uploader:
                 headers={"Idempotency-Key": f"canopy-upload-{mine.capture_id}"},
             )
             outcome.job_id = mine.job_id = int(job.json()["id"])
+            mine.fingerprint = now
             receipt.save(folder)
+        except CaptureError as exc:
+            outcome.error = f"not sent, the capture is invalid: {exc}"
         except RequestRefused as exc:
             outcome.error = f"{step}: refused by the server: {exc}"
         except ServerUnreachable as exc:
             outcome.error, outcome.retryable = f"{step}: {exc}", True
         except OSError as exc:
-            outcome.error = f"{step}: cannot read it: {exc}"
+            outcome.error = f"{step}: cannot read the file or write the receipt: {exc}"
+        except (ValueError, KeyError, TypeError) as exc:
+            outcome.error = f"{step}: the server's answer is not the Canopy API's ({exc!r}); check --server"
         return outcome
+
+    def _still_there(self, capture_id: int | None) -> bool:
+        if not self.verify_done:
+            return True
+        try:
+            self.transport.request("GET", f"/v1/captures/{capture_id}")
+        except RequestRefused as exc:
+            if exc.status == 404:
+                return False
+            raise
+        return True
+
+    def _send(self, capture_id: int, path: str, file: Path) -> int:
+        """PUT one file with its digest; a copy damaged on the way is sent again. Returns its size."""
+        for attempt in range(_DIGEST_RESENDS + 1):
+            data = file.read_bytes()
+            _sha256, digest_header = _content_digest(data)
+            try:
+                self.transport.request(
+                    "PUT",
+                    f"/v1/captures/{capture_id}/files/{path}",
+                    content=data,
+                    headers={"Content-Digest": digest_header},
+                )
+                return len(data)
+            except RequestRefused as exc:
+                if exc.problem.get("code") != "digest_mismatch" or attempt == _DIGEST_RESENDS:
+                    raise
+        raise AssertionError("unreachable")
 
 
 def wait_for_jobs(
@@ -179,7 +237,15 @@ def wait_for_jobs(
 
 
 def receipt_complete(folder: Path, server: str) -> bool:
-    """True when the folder's receipt says the server has the whole capture and its job."""
+    """True when the folder's receipt says the server has the whole capture and its job, and the folder
+    has not changed since."""
     if not (folder / RECEIPT_NAME).is_file():
         return False
-    return Receipt.load(folder).for_server(server.rstrip("/")).job_id is not None
+    mine = Receipt.load(folder).for_server(server.rstrip("/"))
+    if mine.job_id is None:
+        return False
+    try:
+        manifest = parse_manifest((folder / "capture.json").read_bytes())
+        return mine.fingerprint == fingerprint(folder, capture_files(folder, manifest.views))
+    except (CaptureError, OSError):
+        return False

@@ -77,15 +77,10 @@ class FlakyProxy:
             _reset(connection)
 
     def puts(self) -> Counter[str]:
-        """How many PUT requests of each file path reached the server whole."""
+        """How many PUT requests of each address (``/v1/captures/3/files/views/1/depth.png``) reached the
+        server whole."""
         with self._lock:
-            return Counter(
-                {
-                    path.split("/files/", 1)[1]: n
-                    for (method, path), n in self.reached_server.items()
-                    if method == "PUT"
-                }
-            )
+            return Counter({path: n for (method, path), n in self.reached_server.items() if method == "PUT"})
 
     def _accept(self) -> None:
         while not self._stopping:
@@ -157,6 +152,8 @@ class FlakyProxy:
                 0,
             )
             fate = self._fate()
+            if fate == "lose":
+                lose.set()  # before any byte: the server's answer must not reach the client
             cut_at = self._random.randint(0, max(length - 1, 0)) if fate == "cut" else None
             self._send(upstream, head + b"\r\n\r\n")
             sent = 0
@@ -187,7 +184,6 @@ class FlakyProxy:
             if fate == "lose":
                 with self._lock:
                     self.lost += 1
-                lose.set()
                 return
 
     def _responses(self, upstream: socket.socket, client: socket.socket, lose: threading.Event) -> None:

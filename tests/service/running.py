@@ -20,7 +20,7 @@ from typing import Any
 
 import httpx
 
-from service.client.upload import capture_files as files_to_send
+from service.client.upload import files_to_send
 
 CANOPY = str(Path(sys.executable).parent / "canopy")
 START_TIMEOUT_S = 60.0
