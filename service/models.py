@@ -40,6 +40,9 @@ NAMING_CONVENTION = {
 }
 
 
+_GROWING_IDS = {"sqlite_autoincrement": True}
+
+
 def utc_now() -> datetime:
     """The current time, timezone-aware in UTC."""
     return datetime.now(UTC)
@@ -63,12 +66,16 @@ class UtcDateTime(TypeDecorator[datetime]):
 
 
 class Base(DeclarativeBase):
+    """Every table's ids only grow: SQLite's AUTOINCREMENT never hands a deleted row's id to a new one,
+    so an id a client kept (in a receipt, a link) can never name something else."""
+
     metadata = MetaData(naming_convention=NAMING_CONVENTION)
     type_annotation_map: ClassVar[dict[Any, Any]] = {datetime: UtcDateTime, dict[str, Any]: JSON}
 
 
 class Orchard(Base):
     __tablename__ = "orchards"
+    __table_args__ = (_GROWING_IDS,)
 
     id: Mapped[int] = mapped_column(primary_key=True)
     name: Mapped[str] = mapped_column(String(200), unique=True)
@@ -77,7 +84,7 @@ class Orchard(Base):
 
 class Row(Base):
     __tablename__ = "rows"
-    __table_args__ = (UniqueConstraint("orchard_id", "name"),)
+    __table_args__ = (UniqueConstraint("orchard_id", "name"), _GROWING_IDS)
 
     id: Mapped[int] = mapped_column(primary_key=True)
     orchard_id: Mapped[int] = mapped_column(ForeignKey("orchards.id", ondelete="CASCADE"))
@@ -89,7 +96,7 @@ class Row(Base):
 
 class Tree(Base):
     __tablename__ = "trees"
-    __table_args__ = (UniqueConstraint("row_id", "name"),)
+    __table_args__ = (UniqueConstraint("row_id", "name"), _GROWING_IDS)
 
     id: Mapped[int] = mapped_column(primary_key=True)
     row_id: Mapped[int] = mapped_column(ForeignKey("rows.id", ondelete="CASCADE"))
@@ -103,7 +110,7 @@ class Capture(Base):
     """One tree captured once: the manifest as uploaded; unique per tree and capture time."""
 
     __tablename__ = "captures"
-    __table_args__ = (UniqueConstraint("tree_id", "captured_at"),)
+    __table_args__ = (UniqueConstraint("tree_id", "captured_at"), _GROWING_IDS)
 
     id: Mapped[int] = mapped_column(primary_key=True)
     tree_id: Mapped[int] = mapped_column(ForeignKey("trees.id", ondelete="CASCADE"))
@@ -118,7 +125,7 @@ class CaptureFile(Base):
     """One acknowledged file of a capture; its bytes are the blob named by ``sha256``."""
 
     __tablename__ = "capture_files"
-    __table_args__ = (UniqueConstraint("capture_id", "path"),)
+    __table_args__ = (UniqueConstraint("capture_id", "path"), _GROWING_IDS)
 
     id: Mapped[int] = mapped_column(primary_key=True)
     capture_id: Mapped[int] = mapped_column(ForeignKey("captures.id", ondelete="CASCADE"))
@@ -141,6 +148,7 @@ class Job(Base):
     __table_args__ = (
         UniqueConstraint("capture_id", "idempotency_key"),
         Index("ix_jobs_state_lease", "state", "lease_expires_at"),
+        _GROWING_IDS,
     )
 
     id: Mapped[int] = mapped_column(primary_key=True)
@@ -163,6 +171,7 @@ class Measurement(Base):
     """A job's result: the headline metrics as columns for queries, the whole document as JSON."""
 
     __tablename__ = "measurements"
+    __table_args__ = (_GROWING_IDS,)
 
     id: Mapped[int] = mapped_column(primary_key=True)
     job_id: Mapped[int] = mapped_column(ForeignKey("jobs.id", ondelete="CASCADE"), unique=True)
@@ -181,6 +190,7 @@ class ApiKey(Base):
     """An API key, stored only as the SHA-256 of the whole key; ``prefix`` identifies it in lists and logs."""
 
     __tablename__ = "api_keys"
+    __table_args__ = (_GROWING_IDS,)
 
     id: Mapped[int] = mapped_column(primary_key=True)
     name: Mapped[str] = mapped_column(String(200))

@@ -30,6 +30,7 @@ def upgrade() -> None:
         sa.PrimaryKeyConstraint("id", name=op.f("pk_api_keys")),
         sa.UniqueConstraint("key_sha256", name=op.f("uq_api_keys_key_sha256")),
         sa.UniqueConstraint("prefix", name=op.f("uq_api_keys_prefix")),
+        sqlite_autoincrement=True,
     )
     op.create_table(
         "orchards",
@@ -38,6 +39,7 @@ def upgrade() -> None:
         sa.Column("created_at", sa.DateTime(), nullable=False),
         sa.PrimaryKeyConstraint("id", name=op.f("pk_orchards")),
         sa.UniqueConstraint("name", name=op.f("uq_orchards_name")),
+        sqlite_autoincrement=True,
     )
     op.create_table(
         "rows",
@@ -50,6 +52,7 @@ def upgrade() -> None:
         ),
         sa.PrimaryKeyConstraint("id", name=op.f("pk_rows")),
         sa.UniqueConstraint("orchard_id", "name", name=op.f("uq_rows_orchard_id_name")),
+        sqlite_autoincrement=True,
     )
     op.create_table(
         "trees",
@@ -62,6 +65,7 @@ def upgrade() -> None:
         ),
         sa.PrimaryKeyConstraint("id", name=op.f("pk_trees")),
         sa.UniqueConstraint("row_id", "name", name=op.f("uq_trees_row_id_name")),
+        sqlite_autoincrement=True,
     )
     op.create_table(
         "captures",
@@ -75,6 +79,7 @@ def upgrade() -> None:
         ),
         sa.PrimaryKeyConstraint("id", name=op.f("pk_captures")),
         sa.UniqueConstraint("tree_id", "captured_at", name=op.f("uq_captures_tree_id_captured_at")),
+        sqlite_autoincrement=True,
     )
     op.create_table(
         "capture_files",
@@ -94,6 +99,7 @@ def upgrade() -> None:
         ),
         sa.PrimaryKeyConstraint("id", name=op.f("pk_capture_files")),
         sa.UniqueConstraint("capture_id", "path", name=op.f("uq_capture_files_capture_id_path")),
+        sqlite_autoincrement=True,
     )
     op.create_table(
         "jobs",
@@ -116,6 +122,7 @@ def upgrade() -> None:
         ),
         sa.PrimaryKeyConstraint("id", name=op.f("pk_jobs")),
         sa.UniqueConstraint("capture_id", "idempotency_key", name=op.f("uq_jobs_capture_id_idempotency_key")),
+        sqlite_autoincrement=True,
     )
     with op.batch_alter_table("jobs", schema=None) as batch_op:
         batch_op.create_index(batch_op.f("ix_jobs_capture_id"), ["capture_id"], unique=False)
@@ -148,6 +155,7 @@ def upgrade() -> None:
         ),
         sa.PrimaryKeyConstraint("id", name=op.f("pk_measurements")),
         sa.UniqueConstraint("job_id", name=op.f("uq_measurements_job_id")),
+        sqlite_autoincrement=True,
     )
     with op.batch_alter_table("measurements", schema=None) as batch_op:
         batch_op.create_index(batch_op.f("ix_measurements_capture_id"), ["capture_id"], unique=False)

@@ -11,7 +11,13 @@ from sqlalchemy.orm import Session
 from canopy_core.capture import CaptureManifest
 from service.bodies import read_body
 from service.captures.schemas import CaptureOut, FileOut
-from service.captures.service import capture_manifest, capture_out, create_capture, get_capture
+from service.captures.service import (
+    capture_manifest,
+    capture_out,
+    create_capture,
+    delete_capture,
+    get_capture,
+)
 from service.captures.uploads import (
     FileFacts,
     check_against_stored,
@@ -20,7 +26,7 @@ from service.captures.uploads import (
     parse_content_digest,
     record_file,
 )
-from service.deps import CaptureKey, CaptureOrReadKey, ContextDep
+from service.deps import AdminKey, CaptureKey, CaptureOrReadKey, ContextDep
 from service.models import CaptureFile
 from service.problems import (
     BadRequest,
@@ -79,6 +85,15 @@ def read(capture_id: int, context: ContextDep, _key: CaptureOrReadKey) -> Captur
     """A capture and which of its files have been received."""
     with context.database.reading() as session:
         return capture_out(session, get_capture(session, capture_id))
+
+
+@router.delete(
+    "/{capture_id}", status_code=204, response_class=Response, responses=problem_responses(NotFound, Conflict)
+)
+def remove(capture_id: int, context: ContextDep, _key: AdminKey) -> Response:
+    """Delete a capture, its files, jobs and measurements (admin scope); 409 while its job runs."""
+    context.database.write(lambda session: delete_capture(session, capture_id))
+    return Response(status_code=204)
 
 
 @router.put(

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 
-from sqlalchemy import select
+from sqlalchemy import delete, select
 from sqlalchemy.orm import Session
 
 from canopy_core.capture import (
@@ -15,13 +15,14 @@ from canopy_core.capture import (
     parse_manifest,
 )
 from service.captures.schemas import CaptureOut
-from service.models import Capture, CaptureFile, Orchard, Row, Tree
+from service.models import Capture, CaptureFile, Job, Orchard, Row, Tree
 from service.problems import Conflict, NotFound
 
 __all__ = [
     "capture_manifest",
     "capture_out",
     "create_capture",
+    "delete_capture",
     "get_capture",
     "missing_files",
 ]
@@ -72,6 +73,25 @@ def create_capture(session: Session, body: bytes) -> tuple[Capture, bool]:
     session.add(capture)
     session.flush()
     return capture, True
+
+
+def delete_capture(session: Session, capture_id: int) -> None:
+    """Delete a capture with its files' records, jobs and measurements; 409 while a job is queued or running.
+
+    The files' bytes stay in the blob store: they may be shared with other captures (the store keeps
+    identical bytes once), and removing unreferenced blobs safely is a sweep's job, not a request's.
+    """
+    get_capture(session, capture_id)
+    active = session.scalar(
+        select(Job.id).where(Job.capture_id == capture_id, Job.state.in_(("queued", "running"))).limit(1)
+    )
+    if active is not None:
+        raise Conflict(
+            f"capture {capture_id} has job {active} queued or running; delete it once the job has finished",
+            code="job_active",
+            job_id=active,
+        )
+    session.execute(delete(Capture).where(Capture.id == capture_id))  # the database cascades the rest
 
 
 def get_capture(session: Session, capture_id: int) -> Capture:

@@ -13,10 +13,11 @@ import base64
 import hashlib
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
+from datetime import datetime
 from pathlib import Path
 from typing import Any
 
-from canopy_core.capture import capture_time, load_capture, parse_manifest
+from canopy_core.capture import CaptureManifest, capture_time, load_capture, parse_manifest
 from canopy_core.errors import CaptureError
 from service.client.receipts import RECEIPT_NAME, Receipt, ServerReceipt
 from service.client.transport import RequestRefused, ServerUnreachable, Transport
@@ -134,7 +135,8 @@ class Uploader:
             outcome.tree = f"{manifest.orchard} / {manifest.row} / {manifest.tree}"
             files = capture_files(folder, manifest.views)
             now = fingerprint(folder, files)
-            if mine.job_id is not None and mine.fingerprint == now and self._still_there(mine.capture_id):
+            done = mine.job_id is not None and mine.fingerprint == now
+            if done and self._still_there(mine.capture_id, manifest):
                 outcome.capture_id, outcome.job_id = mine.capture_id, mine.job_id
                 outcome.files_already_there = len(files)
                 return outcome
@@ -181,16 +183,23 @@ class Uploader:
             outcome.error = f"{step}: the server's answer is not the Canopy API's ({exc!r}); check --server"
         return outcome
 
-    def _still_there(self, capture_id: int | None) -> bool:
+    def _still_there(self, capture_id: int | None, manifest: CaptureManifest) -> bool:
+        """True when the server still holds this capture under the id the receipt has (a server that was
+        reset may have given that id to another capture, or to none)."""
         if not self.verify_done:
             return True
         try:
-            self.transport.request("GET", f"/v1/captures/{capture_id}")
+            held = self.transport.request("GET", f"/v1/captures/{capture_id}").json()
         except RequestRefused as exc:
             if exc.status == 404:
                 return False
             raise
-        return True
+        same_tree = (held["orchard"], held["row"], held["tree"]) == (
+            manifest.orchard,
+            manifest.row,
+            manifest.tree,
+        )
+        return same_tree and datetime.fromisoformat(held["captured_at"]) == capture_time(manifest)
 
     def _send(self, capture_id: int, path: str, file: Path) -> int:
         """PUT one file with its digest; a copy damaged on the way is sent again. Returns its size."""
