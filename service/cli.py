@@ -8,10 +8,12 @@ Heavy imports (FastAPI, SQLAlchemy, uvicorn) happen inside the commands, so ``ca
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import sys
 import threading
 from pathlib import Path
+from types import FrameType
 from typing import TYPE_CHECKING, Annotated
 
 import typer
@@ -82,7 +84,12 @@ class _WorkerProcess:
         threading.Thread(target=self._watch, name="worker-watch", daemon=True).start()
 
     def _start(self) -> subprocess.Popen[bytes]:
-        return subprocess.Popen([sys.executable, "-m", "worker"], env=self._environment)
+        # The worker stops when its stdin closes, which happens when this process ends, even by SIGKILL.
+        return subprocess.Popen(
+            [sys.executable, "-m", "worker", "--until-stdin-closes"],
+            env=self._environment,
+            stdin=subprocess.PIPE,
+        )
 
     def _watch(self) -> None:
         while True:
@@ -106,6 +113,10 @@ class _WorkerProcess:
             self._process.kill()
 
 
+def _exit_on_signal(signal_number: int, _frame: FrameType | None) -> None:
+    raise SystemExit(128 + signal_number)
+
+
 @app.command()
 def up(host: HostOpt = "127.0.0.1", port: PortOpt = 8000, data: DataOpt = None) -> None:
     """The embedded default: API and one worker on a SQLite file in the data folder (./canopy-data).
@@ -124,6 +135,9 @@ def up(host: HostOpt = "127.0.0.1", port: PortOpt = 8000, data: DataOpt = None) 
     typer.echo(f"Data in {settings.data_dir.resolve()}; API on http://{host}:{port} (docs at /docs)")
     environment = {**os.environ, "CANOPY_DATA_DIR": str(settings.data_dir.resolve())}
     worker_process = _WorkerProcess(environment)
+    # uvicorn shuts down on SIGTERM, then raises the signal again with the handler found before it: this
+    # one turns it into SystemExit, so that the worker below is stopped rather than orphaned.
+    signal.signal(signal.SIGTERM, _exit_on_signal)
     try:
         _serve(context, host, port)
     finally:

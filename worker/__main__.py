@@ -1,16 +1,27 @@
-"""``python -m worker``: run one worker until SIGTERM or Ctrl-C (what ``canopy worker`` starts)."""
+"""``python -m worker``: run one worker until SIGTERM or Ctrl-C (what ``canopy worker`` starts), or until
+its stdin closes when started with ``--until-stdin-closes`` (what ``canopy up`` does)."""
 
 from __future__ import annotations
 
 import logging
 import signal
 import sys
+import threading
 from types import FrameType
 
 from service.context import Context
 from service.migrate import is_current
 from service.settings import Settings
 from worker.runner import Worker
+
+UNTIL_STDIN_CLOSES = "--until-stdin-closes"
+"""Given by a parent that keeps the worker's stdin open while it lives (``canopy up``): when the parent
+ends, however it ends, the worker hands its job back and stops instead of running on unsupervised."""
+
+
+def _stop_when_stdin_closes(worker: Worker) -> None:
+    sys.stdin.buffer.read()
+    worker.stop()
 
 
 def main() -> None:
@@ -23,13 +34,15 @@ def main() -> None:
             "(or `canopy up`) once to migrate it\n"
         )
         sys.exit(2)
-    worker = Worker(context, name=sys.argv[1] if len(sys.argv) > 1 else None)
+    worker = Worker(context)
 
     def stop(_signal: int, _frame: FrameType | None) -> None:
         worker.stop()
 
     signal.signal(signal.SIGTERM, stop)
     signal.signal(signal.SIGINT, stop)
+    if UNTIL_STDIN_CLOSES in sys.argv[1:]:
+        threading.Thread(target=_stop_when_stdin_closes, args=(worker,), daemon=True).start()
     worker.run_forever()
     context.database.dispose()
 

@@ -9,6 +9,7 @@ import time
 from pathlib import Path
 
 import httpx
+import pytest
 from alembic.autogenerate import compare_metadata
 from alembic.migration import MigrationContext
 
@@ -64,21 +65,39 @@ def test_up_creates_the_database_and_prints_an_admin_key_once(tmp_path: Path) ->
     assert not any(line.strip().startswith("canopy_") for line in second_lines)
 
 
-def test_up_runs_a_worker_beside_the_api(tmp_path: Path) -> None:
+def _worker_of(process: subprocess.Popen[str]) -> int:
+    """The pid of the worker `canopy up` started, once it runs."""
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        children = subprocess.run(
+            ["ps", "-o", "pid=,args=", "--ppid", str(process.pid)],
+            capture_output=True,
+            text=True,
+            check=False,
+        )
+        for line in children.stdout.splitlines():
+            pid, _, command = line.strip().partition(" ")
+            if "-m worker" in command:
+                return int(pid)
+        time.sleep(0.1)
+    raise AssertionError("canopy up started no worker")
+
+
+def _wait_until_gone(pid: int) -> None:
+    deadline = time.monotonic() + 60
+    while Path(f"/proc/{pid}").exists() and "zombie" not in Path(f"/proc/{pid}/status").read_text():
+        assert time.monotonic() < deadline, f"process {pid} is still running"
+        time.sleep(0.1)
+
+
+@pytest.mark.parametrize("ending", [signal.SIGINT, signal.SIGTERM, signal.SIGKILL])
+def test_up_runs_a_worker_that_ends_with_it(tmp_path: Path, ending: signal.Signals) -> None:
     port = free_port()
     process, _ = _start_up(tmp_path / "data", port)
-    try:
-        deadline = time.monotonic() + 60
-        workers: list[str] = []
-        while not workers and time.monotonic() < deadline:
-            children = subprocess.run(
-                ["ps", "-o", "args=", "--ppid", str(process.pid)], capture_output=True, text=True, check=False
-            )
-            workers = [line for line in children.stdout.splitlines() if "-m worker" in line]
-            time.sleep(0.1)
-    finally:
-        _stop(process)
-    assert workers
+    worker = _worker_of(process)
+    process.send_signal(ending)
+    process.wait(timeout=60)
+    _wait_until_gone(worker)
 
 
 def test_keys_create_prints_the_key_alone_on_its_last_line_and_list_shows_its_prefix(
