@@ -89,6 +89,7 @@ print("ground truth: H %.3f  W %.3f  D %.3f m" % (truth["height_m"], truth["widt
 print(f"fused cloud:  {sys.argv[1]}/v1/measurements/{job['measurement_id']}/cloud.ply")
 PY
 )" "$server" "$key" "$demo/tree_000/ground_truth.json"
+        echo "Send capture folders from the laptop: .venv/bin/canopy upload FOLDER --server $server --key $key --wait"
         echo "The service keeps running at $server (API docs: $server/docs); Ctrl-C stops it."
         wait $up_pid
         ;;
