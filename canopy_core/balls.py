@@ -1,360 +1,192 @@
-"""Calibration ball detection: colour masks, blobs of ball-coloured pixels and robust sphere fits.
+"""Calibration ball detection in one view: spheres found by their geometry, then told apart by their colour.
 
-A ball is found in one view by its colour (an HSV range); its points are grouped into blobs in the depth
-image, blobs of a ball's size get a RANSAC sphere at the ball's known radius, and the likeliest is refined by
-robust least squares and checked (:func:`detect_ball`). The camera sits at the origin looking along +z and
-sees only the near side of a ball: its centre lies behind the visible surface, and points on the far side of
-a sphere (flying pixels strung behind the silhouette) are never counted as its inliers.
+A calibration ball is a sphere of known radius. Every point whose colour is near a ball's (a soft colour
+likelihood that tolerates shade and white-balance drift, :func:`color_likelihood`) votes for where the
+centre of a sphere through it would lie: one radius behind it along its surface normal. The points of a
+ball all vote for its centre, while a flat patch of the ball's colour (straw, soil, fallen leaves, a jacket)
+spreads its votes over a plane and a cluster of leaves scatters them, so balls show as peaks of votes (a
+Hough transform at the known radius) however much of their colour surrounds them, even joined to it in the
+image. Each peak is fitted with a robust sphere on every point near it whatever its colour (a ball's
+shaded side is still a ball) and described as a :class:`BallCandidate`: points for its range, radius,
+residual, coverage of its outline, and how much of it has each ball's colour.
+
+Which candidate is which ball is decided by :func:`canopy_core.ball_selection.select_balls`, jointly across
+views (the balls' triangle is the same from every side) and on the ground; :func:`detect_balls` takes the
+likeliest in one view alone.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Any
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
-from scipy.optimize import least_squares
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
 
 from canopy_core.backproject import ViewCloud
 from canopy_core.config import BallConfig
 from canopy_core.errors import BallNotFound
+from canopy_core.spheres import SphereFit, ransac_centre, refine_sphere, sphere_inliers
 
-__all__ = ["SphereFit", "color_mask", "detect_ball", "detect_balls", "fit_sphere"]
+__all__ = [
+    "BallCandidate",
+    "ViewBallCandidates",
+    "color_likelihood",
+    "color_mask",
+    "detect_ball",
+    "detect_balls",
+    "find_ball_candidates",
+]
 
-_RANSAC_MAX_POINTS = 1000
-"""Hypotheses are scored on a random subset of at most this many points; inliers are then taken from all."""
-_LEAST_SQUARES_MAX_POINTS = 2000
-"""Each least-squares round uses at most this many inliers, evenly strided: enough for a sub-mm fit."""
-_MAX_ROUNDS = 10
-"""Least-squares rounds at most, each re-selecting the inliers of the last sphere."""
-_RADIUS_PRIOR = 0.01
-"""Relative spread of a ball's radius about the nominal one, as a soft prior of the centre's fit: it steadies
-the radius (and so the centre's depth) of a small or partly seen ball; being inside the robust loss, it
-gives way where thousands of points insist (the real 406 mm ball that Kinect v2 sees as 422 mm)."""
+_SEED_LIKELIHOOD = 0.3
+"""Points whose colour likelihood for some ball reaches this vote for sphere centres (a shaded or
+white-balance-shifted ball pixel reaches 0.4 or more; the fit then takes every point near the sphere)."""
+_NORMAL_BASELINE = 0.45
+"""A point's normal comes from its neighbours this many ball radii away on each side: wide enough that depth
+noise tilts it little, narrow enough that the sphere's curvature does not (a far 10 cm ball is 8 px wide)."""
+_MAX_STEP_PX = 8
+_NEIGHBOUR_OFFSETS = np.array([(dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1)])
+_MIN_NORMAL_NEIGHBOURS = 5
+"""Fewest points of the window, on the same surface, that a normal is estimated from."""
+_VOTE_RADIUS = 0.4
+"""Votes within this many ball radii of one another count together: normals from 3x3 windows of Kinect
+v2 points at 3-4 m err by 10-20 degrees, which moves a vote by 0.2-0.35 radii."""
+_MIN_PEAK = 0.12
+"""Least share of a ball's expected pixels that must vote for a centre for it to be tried (balls: 0.3 to
+0.7; a flat patch at the same range: 0.15 or less)."""
+_MIN_CONCENTRATION = 0.5
+"""Least share of the votes within a radius of a peak that lie within ``_VOTE_RADIUS`` radii of it."""
+_MAX_BLOB_DIAMETERS = 3.0
+"""A group of a colour's pixels wider than this many ball diameters is not a ball seen alone."""
+_MAX_PEAKS = 8
+"""At most this many vote peaks per colour and view are fitted (bounds the time per view)."""
+_NEAR_RADII = 1.6
+"""A peak's sphere is fitted to the points within this many radii of it (its centre is a few cm off)."""
+_SURE_LIKELIHOOD = 0.8
+"""Points near a peak with this likelihood of its colour or more surely have it and are fitted: within its
+range or just outside it. (On the real Kinect v2 frames, fitting every point of likelihood 0.05 or more lets
+the rim's mixed pixels pull the centre: 3.5 mm median error against 1.9.)"""
+_MAYBE_LIKELIHOOD = 0.05
+"""Points with this likelihood or more may be the ball's and count towards its points: a ball pixel in deep
+shade keeps 0.1 or more, other colours, sky and bark about 0."""
+_OUTLINE_RADII = 1.8
+"""Coverage is judged on the pixels within this many projected radii of the fitted centre."""
 _RADIUS_SPREAD = 0.05
 """Relative spread of the radius a ball is seen with about its nominal one, for ranking candidates: the
-diameter given may be a little off (a ball sold as 406 mm that Kinect v2 sees as 422 mm)."""
-_MAX_BLOB_WIDTH_RADII = 6.0
-"""A blob wider than this many ball radii is neither a ball nor a ball with a small thing touching it."""
-_MAX_BLOBS = 12
-"""At most this many of the largest ball-sized blobs of one colour are tried (bounds the time per view)."""
-_MIN_COMPLETENESS = 0.3
-"""Least fraction of the pixels a ball covers that must be inliers of its colour (balls seen whole in real
-and simulated Kinect v2 views: 0.5 to 1; spheres through distant background surfaces: 0.25 or less)."""
+diameter given may be a little off (a ball sold as 406 mm that Kinect v2 sees as 422 mm), and mixed pixels
+at the rim shrink a small far ball by about 6 %; apples are 10-40 % smaller."""
 _TOLERANCE_REFERENCE_RANGE_M = 3.0
 """Up to this range the configured inlier tolerance holds; beyond, it grows as range², like the depth noise
 of a time-of-flight camera, so a far ball in sun is still fitted as a ball."""
-_MIN_COVERAGE = 0.6
-"""Least fraction of the points seen through a ball's outline that lie on it (balls: 0.7 to 1; spheres
-through clusters of leaves of the ball's colour: 0.5 or less)."""
 
 
 @dataclass(frozen=True)
-class SphereFit:
-    """A calibration ball fitted in one view's depth-camera frame.
+class BallCandidate:
+    """A sphere found in one view that may be a calibration ball.
 
     Attributes
     ----------
-    center_m
-        Centre ``[x, y, z]``, metres, fitted with the radius held softly to the known one.
-    radius_m
-        Radius of a free fit to the same inliers, metres: a check on the ball's identity and size.
-    points
-        Inlier points the sphere was fitted to.
-    rms_m
-        RMS distance of the inliers to the sphere the centre was fitted with, metres.
-    candidates
-        Points the inliers were chosen from (the ball-coloured points, or all the points given).
-    coverage
-        Fraction of the points seen through the sphere's outline, and not in front of it, that lie on it:
-        near 1 for a solid ball, which hides what is behind it; low for a sphere across unrelated surfaces.
+    fit
+        The sphere, in the view's depth-camera frame.
+    expected_points
+        Pixels a ball of the nominal radius at the fitted centre covers.
+    color_scores
+        Per configured colour, the mean colour likelihood of the sphere's points that the colour camera
+        sees (0: none has that colour, 1: all of them, fully).
+    problem
+        Why the sphere's geometry is not a ball's (too few points, radius, residual, coverage), or None.
+    hint
+        What the crew can do about ``problem``.
     """
 
-    center_m: np.ndarray
-    radius_m: float
-    points: int
-    rms_m: float
-    candidates: int
-    coverage: float
+    fit: SphereFit
+    expected_points: float
+    color_scores: dict[str, float]
+    problem: str | None = None
+    hint: str | None = None
 
-    def to_dict(self) -> dict[str, Any]:
-        """The fit as JSON-ready values: ``center_m`` ``[x, y, z]``, ``radius_m``, ``points``, ``rms_m``."""
-        return {
-            "center_m": [float(value) for value in self.center_m],
-            "radius_m": float(self.radius_m),
-            "points": int(self.points),
-            "rms_m": float(self.rms_m),
-        }
+    @property
+    def completeness(self) -> float:
+        """Points on the sphere over the pixels a ball there covers (about 0.5-1 for a ball seen whole)."""
+        return self.fit.points / max(self.expected_points, 1.0)
 
-
-def fit_sphere(
-    points_m: np.ndarray,
-    *,
-    radius_m: float,
-    inlier_tolerance_m: float = 0.008,
-    iterations: int = 300,
-    rng: np.random.Generator | None = None,
-) -> SphereFit:
-    """Fit a sphere to the visible side of a ball of known radius, robustly.
-
-    RANSAC draws three points at a time; each triple fixes two centres at the known radius, and the one
-    farther from the camera is kept, since the camera (at the origin, looking along +z) sees the near side of
-    the ball. Hypotheses are scored by MSAC (truncated squared distance), counting only points on the side
-    facing the camera, so flying pixels strung behind the silhouette never support a hypothesis. The best
-    one is refined by robust least squares (soft-L1 loss), re-selecting its inliers each round until they
-    repeat; the radius is held to the known one by a soft prior inside the same robust loss
-    (``_RADIUS_PRIOR``), and a last fit with the radius free gives ``radius_m``.
-
-    Why a soft prior: a radius that is wrong moves the centre along the line of sight by about as much. On
-    the real Kinect v2 frames of a ball sold as 406 mm, which the sensor sees as 422 mm, centres fitted with
-    the radius fixed at 203 mm lie a median 10 mm (max 13) from the data authors' reference, with it free
-    2.0 mm (max 8.1), with the soft prior 1.8 mm (max 8.3). On simulated Kinect v2 views of 10 cm balls at
-    2.5-4.7 m, whose mixed pixels at the rim shrink a free radius by about 6 % (up to 12 %), the free
-    centres are 4.4 mm off (median; max 12), the fixed and the soft-prior ones 1.6 mm (max 6).
-
-    Parameters
-    ----------
-    points_m
-        ``(N, 3)`` points in the camera frame, metres, N >= 4.
-    radius_m
-        The ball's known (nominal) radius, metres.
-    inlier_tolerance_m
-        A point is an inlier when it lies within this distance of the sphere's surface.
-    iterations
-        RANSAC hypotheses scored.
-    rng
-        Random generator for the sampling; a fixed seed by default, so the fit is deterministic.
-
-    Returns
-    -------
-    SphereFit
-        Centre, radius, inlier count, RMS residual and coverage among the points given (``candidates`` N).
-
-    Raises
-    ------
-    ValueError
-        Points not ``(N, 3)``, fewer than four, or non-finite; radius, tolerance or iterations not positive;
-        fewer than four points on any sphere near the known radius.
-    """
-    points = _checked_points(points_m)
-    if not (np.isfinite(radius_m) and radius_m > 0.0):
-        raise ValueError(f"radius_m must be positive and finite, got {radius_m}")
-    if not (np.isfinite(inlier_tolerance_m) and inlier_tolerance_m > 0.0):
-        raise ValueError(f"inlier_tolerance_m must be positive and finite, got {inlier_tolerance_m}")
-    if iterations < 1:
-        raise ValueError(f"iterations must be at least 1, got {iterations}")
-    rng = np.random.default_rng(0) if rng is None else rng
-    centre = _ransac_centre(points, radius_m, inlier_tolerance_m, iterations, rng)
-    return _refine(
-        points, centre, radius_m, nominal_radius_m=radius_m, tolerance_m=inlier_tolerance_m, scene_m=points
-    )
-
-
-def _checked_points(points_m: np.ndarray) -> np.ndarray:
-    points = np.asarray(points_m, dtype=np.float64)
-    if points.ndim != 2 or points.shape[1] != 3:
-        raise ValueError(f"points_m must have shape (N, 3), got {points.shape}")
-    if points.shape[0] < 4:
-        raise ValueError(f"a sphere fit needs at least 4 points, got {points.shape[0]}")
-    if not np.isfinite(points).all():
-        raise ValueError("points_m holds non-finite values")
-    return points
-
-
-def _ransac_centre(
-    points: np.ndarray, radius_m: float, tolerance_m: float, iterations: int, rng: np.random.Generator
-) -> np.ndarray:
-    """The MSAC-best centre over sphere hypotheses of the known radius through random point triples."""
-    if points.shape[0] > _RANSAC_MAX_POINTS:
-        scored = points[rng.choice(points.shape[0], _RANSAC_MAX_POINTS, replace=False)]
-    else:
-        scored = points
-    # Most triples of a cluttered blob fit no sphere of this radius; draw extra so that enough remain.
-    triples = scored[rng.integers(0, scored.shape[0], size=(4 * iterations, 3))]
-    centres = _far_centres(triples, radius_m)[:iterations]
-    if centres.shape[0] == 0:
-        raise ValueError(f"no three points lie on a sphere of radius {radius_m} m")
-    # Distances and facing through matrix products: |p - c|^2 = |p|^2 - 2 p.c + |c|^2, (p - c).p/|p|.
-    norms = np.linalg.norm(scored, axis=1)
-    dot = centres @ scored.T
-    distance = np.sqrt(np.maximum(norms**2 - 2.0 * dot + np.sum(centres**2, axis=1)[:, None], 0.0))
-    facing = norms - dot / norms < 0.0
-    cost = np.where(facing, np.minimum((distance - radius_m) ** 2, tolerance_m**2), tolerance_m**2)
-    return centres[np.argmin(cost.sum(axis=1))]
-
-
-def _far_centres(triples: np.ndarray, radius_m: float) -> np.ndarray:
-    """Centres of the spheres of radius ``radius_m`` through point triples, the one farther from the camera.
-
-    ``triples`` is ``(K, 3, 3)``; triples that no such sphere passes through, or collinear ones, are dropped.
-    """
-    a, b, c = triples[:, 0], triples[:, 1], triples[:, 2]
-    u, v = b - a, c - a
-    normal = np.cross(u, v)
-    normal_sq = np.einsum("ij,ij->i", normal, normal)
-    ok = normal_sq > 1e-18
-    u, v, a, normal, normal_sq = u[ok], v[ok], a[ok], normal[ok], normal_sq[ok]
-    to_circumcentre = (
-        np.einsum("ij,ij->i", u, u)[:, None] * np.cross(v, normal)
-        + np.einsum("ij,ij->i", v, v)[:, None] * np.cross(normal, u)
-    ) / (2.0 * normal_sq[:, None])
-    height_sq = radius_m**2 - np.einsum("ij,ij->i", to_circumcentre, to_circumcentre)
-    ok = height_sq >= 0.0
-    circumcentre = a[ok] + to_circumcentre[ok]
-    unit_normal = normal[ok] / np.sqrt(normal_sq[ok])[:, None]
-    away = np.where(np.einsum("ij,ij->i", unit_normal, circumcentre) >= 0.0, 1.0, -1.0)
-    return circumcentre + (away * np.sqrt(height_sq[ok]))[:, None] * unit_normal
-
-
-def _inliers(points: np.ndarray, sphere: np.ndarray, tolerance_m: float) -> np.ndarray:
-    """Mask of the points within ``tolerance_m`` of the sphere ``[x, y, z, r]``, on its side facing the
-    camera (a visible surface's normal points towards the camera).
-
-    Raises
-    ------
-    ValueError
-        When fewer than four points are inliers.
-    """
-    offsets = points - sphere[:3]
-    distance = np.linalg.norm(offsets, axis=1)
-    facing = np.einsum("ij,ij->i", offsets, points) < 0.0
-    mask = (np.abs(distance - sphere[3]) < tolerance_m) & facing
-    if np.count_nonzero(mask) < 4:
-        raise ValueError(
-            f"only {np.count_nonzero(mask)} of {points.shape[0]} points lie within {tolerance_m} m of the "
-            f"sphere; at least 4 are needed"
+    def score(self, color: str, *, radius_m: float) -> float:
+        """How likely this is the ``color`` ball, in [0, 1]: completeness times a Gaussian of the radius's
+        relative error (``_RADIUS_SPREAD``) times the colour score."""
+        radius_error = (self.fit.radius_m - radius_m) / radius_m
+        return (
+            min(self.completeness, 1.0)
+            * float(np.exp(-0.5 * (radius_error / _RADIUS_SPREAD) ** 2))
+            * self.color_scores[color]
         )
-    return mask
+
+    def problem_as(self, color: str, config: BallConfig) -> str | None:
+        """Why this is not the ``color`` ball: its geometry's problem, or too little of that colour."""
+        if self.problem is not None:
+            return self.problem
+        if self.color_scores[color] < config.min_color_score:
+            return (
+                f"a sphere {self.range_m:.1f} m away has too little of the {color} ball's colour "
+                f"({self.color_scores[color]:.0%} of it, at least {config.min_color_score:.0%} needed)"
+            )
+        return None
+
+    @property
+    def range_m(self) -> float:
+        """Distance of the centre from the camera."""
+        return float(np.linalg.norm(self.fit.center_m))
 
 
-def _refine(
-    points: np.ndarray,
-    centre: np.ndarray,
-    radius_m: float,
-    *,
-    nominal_radius_m: float,
-    tolerance_m: float,
-    scene_m: np.ndarray,
-) -> SphereFit:
-    """Refine a start sphere on ``points`` and describe the result; ``scene_m`` (every point in view, or
-    ``points`` themselves) gives its coverage."""
-    sphere, inliers = _converge(points, np.append(centre, radius_m), nominal_radius_m, tolerance_m)
-    free = _least_squares_sphere(
-        inliers[:: _stride(inliers.shape[0])],
-        sphere,
-        nominal_radius_m=nominal_radius_m,
-        tolerance_m=tolerance_m,
-        prior_weight=0.0,
-    )
-    distances = np.linalg.norm(inliers - sphere[:3], axis=1)
-    return SphereFit(
-        center_m=sphere[:3],
-        radius_m=float(free[3]),
-        points=int(distances.size),
-        rms_m=float(np.sqrt(np.mean((distances - sphere[3]) ** 2))),
-        candidates=int(points.shape[0]),
-        coverage=_coverage(scene_m, free, tolerance_m),
-    )
+@dataclass(frozen=True)
+class ViewBallCandidates:
+    """The spheres found in one view, and per colour how many points had that colour at all."""
 
+    view: str
+    candidates: tuple[BallCandidate, ...]
+    colored_points: dict[str, int]
+    hsv_ranges: dict[str, list[list[int]]]
 
-def _converge(
-    points: np.ndarray, sphere: np.ndarray, nominal_radius_m: float, tolerance_m: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """Robust least squares from a start sphere, re-selecting the inliers of the last sphere each round until
-    they repeat (converged, or flipping between two sets) or the rounds run out.
-
-    Returns
-    -------
-    tuple of numpy.ndarray
-        The sphere ``[x, y, z, r]`` and its inlier points.
-    """
-    mask = _inliers(points, sphere, tolerance_m)
-    seen: set[bytes] = set()
-    for _ in range(_MAX_ROUNDS):
-        seen.add(np.packbits(mask).tobytes())
-        stride = _stride(int(np.count_nonzero(mask)))
-        sphere = _least_squares_sphere(
-            points[mask][::stride],
-            sphere,
-            nominal_radius_m=nominal_radius_m,
-            tolerance_m=tolerance_m,
-            prior_weight=1.0 / np.sqrt(stride),
+    def ranked(self, color: str, config: BallConfig) -> list[BallCandidate]:
+        """The candidates for ``color``: plausible ones first, each group likeliest first."""
+        return sorted(
+            self.candidates,
+            key=lambda c: (
+                c.problem_as(color, config) is not None,
+                -c.score(color, radius_m=config.radius_m),
+            ),
         )
-        mask = _inliers(points, sphere, tolerance_m)
-        if np.packbits(mask).tobytes() in seen:
-            break
-    return sphere, points[mask]
 
-
-def _stride(count: int) -> int:
-    """The step that thins ``count`` points to at most ``_LEAST_SQUARES_MAX_POINTS``."""
-    return int(np.ceil(count / _LEAST_SQUARES_MAX_POINTS))
-
-
-def _range_tolerance(tolerance_m: float, centre: np.ndarray) -> float:
-    """The inlier tolerance for a ball at ``centre`` (camera frame): widened as range² past the reference."""
-    return tolerance_m * max(1.0, (float(np.linalg.norm(centre)) / _TOLERANCE_REFERENCE_RANGE_M) ** 2)
-
-
-def _coverage(scene_m: np.ndarray, sphere: np.ndarray, tolerance_m: float) -> float:
-    """Fraction of the points seen through the sphere's outline, and not in front of it, that lie on it.
-
-    A solid ball hides whatever is behind it, so nearly every point whose line of sight crosses its outline
-    lies on its surface (or in front of it: an occluder); a sphere fitted across unrelated surfaces has many
-    points behind its surface.
-    """
-    centre, radius_m = sphere[:3], sphere[3]
-    distance = np.linalg.norm(scene_m, axis=1)
-    closest = scene_m @ centre / distance  # along each line of sight, to its point nearest the centre
-    discriminant = closest**2 - (centre @ centre - radius_m**2)
-    through = discriminant > 0.0
-    seen, distance = scene_m[through], distance[through]
-    front = closest[through] - np.sqrt(discriminant[through])
-    offsets = seen - centre
-    on_sphere = (np.abs(np.linalg.norm(offsets, axis=1) - radius_m) < tolerance_m) & (
-        np.einsum("ij,ij->i", offsets, seen) < 0.0
-    )
-    not_in_front = distance >= front - tolerance_m
-    return int(np.count_nonzero(on_sphere & not_in_front)) / max(int(np.count_nonzero(not_in_front)), 1)
-
-
-def _least_squares_sphere(
-    points: np.ndarray, start: np.ndarray, *, nominal_radius_m: float, tolerance_m: float, prior_weight: float
-) -> np.ndarray:
-    """``[x, y, z, r]`` minimising the soft-L1 loss of the points' distances to the sphere and of the radius'
-    departure from the nominal one (in units of ``_RADIUS_PRIOR``), all in one robust loss.
-
-    ``prior_weight`` scales the prior down when the points are a 1-in-k sample of the inliers (1/sqrt(k)).
-    The radius is bounded to within a factor two of the nominal one, so that a flat patch cannot run off to
-    an infinite sphere; such a fit is then refused for its radius.
-    """
-    scale = tolerance_m / 2.0
-    prior_slope = prior_weight * scale / (_RADIUS_PRIOR * nominal_radius_m)
-
-    def residuals(sphere: np.ndarray) -> np.ndarray:
-        distances = np.linalg.norm(points - sphere[:3], axis=1) - sphere[3]
-        return np.append(distances, prior_slope * (sphere[3] - nominal_radius_m))
-
-    def jacobian(sphere: np.ndarray) -> np.ndarray:
-        offsets = points - sphere[:3]
-        directions = offsets / np.linalg.norm(offsets, axis=1, keepdims=True)
-        rows = np.column_stack([-directions, -np.ones(points.shape[0])])
-        return np.vstack([rows, [0.0, 0.0, 0.0, prior_slope]])
-
-    lower = np.array([-np.inf, -np.inf, -np.inf, nominal_radius_m / 2.0])
-    upper = np.array([np.inf, np.inf, np.inf, nominal_radius_m * 2.0])
-    result = least_squares(
-        residuals,
-        np.clip(start, lower, upper),
-        jac=jacobian,
-        bounds=(lower, upper),
-        loss="soft_l1",
-        f_scale=scale,
-    )
-    return np.asarray(result.x, dtype=np.float64)
+    def not_found(self, color: str, config: BallConfig) -> BallNotFound:
+        """The error for a ``color`` ball that none of the candidates is: the likeliest one's problem."""
+        if self.colored_points[color] == 0:
+            return BallNotFound(
+                f"no {color} point in the view (HSV range {self.hsv_ranges[color]})",
+                view=self.view,
+                color=color,
+                hint=f"Check that the ball is in view and lit, or adjust calibration_balls.hsv.{color}",
+            )
+        if self.colored_points[color] < config.min_points:
+            return BallNotFound(
+                f"too few {color} points: {self.colored_points[color]} found, at least {config.min_points} "
+                "needed",
+                view=self.view,
+                color=color,
+                hint="The ball may be hidden, too far or badly lit; move closer or lower balls.min_points",
+            )
+        colored = [c for c in self.candidates if c.color_scores[color] >= config.min_color_score]
+        if not colored:
+            return BallNotFound(
+                f"no sphere of about {config.radius_m * 1000:.0f} mm radius among the "
+                f"{self.colored_points[color]} {color} points",
+                view=self.view,
+                color=color,
+                hint="The ball may be hidden, too far or too dark to show its shape, or of another size "
+                "than calibration_balls.diameter_m; check with `canopy balls --preview`",
+            )
+        best = max(colored, key=lambda c: c.score(color, radius_m=config.radius_m))
+        return BallNotFound(best.problem_as(color, config) or "", view=self.view, color=color, hint=best.hint)
 
 
 def color_mask(colors_rgb: np.ndarray, hsv_range: list[list[int]]) -> np.ndarray:
@@ -373,7 +205,28 @@ def color_mask(colors_rgb: np.ndarray, hsv_range: list[list[int]]) -> np.ndarray
     numpy.ndarray
         ``(N,)`` boolean mask.
     """
-    return _hsv_mask(_to_hsv(colors_rgb), hsv_range)
+    return _likelihood(_to_hsv(colors_rgb), hsv_range, hue_spread=None) == 1.0
+
+
+def color_likelihood(colors_rgb: np.ndarray, hsv_range: list[list[int]], *, hue_spread: float) -> np.ndarray:
+    """How much each colour looks like a ball's colour, in [0, 1]: 1 inside the HSV range, less outside.
+
+    Outside the range the hue term falls as a Gaussian of the hue's distance to it (``hue_spread``, OpenCV
+    units), and saturation or value below the range's floor scale the likelihood down in proportion (a
+    shaded ball keeps its hue but loses value; grey and black things have no reliable hue). Chromaticity
+    (hue, saturation) does not change with exposure, and a white-balance drift of 20 % moves a saturated
+    colour's hue by a few units only, so a ball keeps a high likelihood in any light.
+
+    Parameters
+    ----------
+    colors_rgb
+        ``(N, 3)`` uint8 RGB colours.
+    hsv_range
+        As for :func:`color_mask`.
+    hue_spread
+        Hue distance at which the hue term is exp(-1/2).
+    """
+    return _likelihood(_to_hsv(colors_rgb), hsv_range, hue_spread=hue_spread)
 
 
 def _to_hsv(colors_rgb: np.ndarray) -> np.ndarray:
@@ -385,15 +238,36 @@ def _to_hsv(colors_rgb: np.ndarray) -> np.ndarray:
     return cv2.cvtColor(colors[:, None, :], cv2.COLOR_RGB2HSV).reshape(-1, 3)
 
 
-def _hsv_mask(hsv: np.ndarray, hsv_range: list[list[int]]) -> np.ndarray:
+def _likelihood(hsv: np.ndarray, hsv_range: list[list[int]], *, hue_spread: float | None) -> np.ndarray:
+    """The colour likelihood of HSV values; with ``hue_spread`` None, 1 inside the range and 0 outside."""
     (h_low, s_low, v_low), (h_high, s_high, v_high) = hsv_range
-    hue, saturation, value = hsv[:, 0], hsv[:, 1], hsv[:, 2]
-    hue_ok = (hue >= h_low) & (hue <= h_high) if h_low <= h_high else (hue >= h_low) | (hue <= h_high)
-    return hue_ok & (saturation >= s_low) & (saturation <= s_high) & (value >= v_low) & (value <= v_high)
+    hue, saturation, value = (hsv[:, i].astype(np.float32) for i in range(3))
+    inside_hue = (hue >= h_low) & (hue <= h_high) if h_low <= h_high else (hue >= h_low) | (hue <= h_high)
+    if hue_spread is None:
+        inside = inside_hue & (saturation >= s_low) & (saturation <= s_high)
+        return (inside & (value >= v_low) & (value <= v_high)).astype(np.float32)
+    distance = np.minimum(_hue_distance(hue, h_low), _hue_distance(hue, h_high))
+    hue_term = np.where(inside_hue, 1.0, np.exp(-0.5 * (distance / hue_spread) ** 2))
+    return (hue_term * _band_term(saturation, s_low, s_high) * _band_term(value, v_low, v_high)).astype(
+        np.float32
+    )
 
 
-def detect_balls(cloud: ViewCloud, config: BallConfig) -> dict[str, SphereFit]:
-    """Find every calibration ball of ``config.colors`` in one view (see :func:`detect_ball`).
+def _hue_distance(hue: np.ndarray, bound: float) -> np.ndarray:
+    """Distance round the hue circle (180 OpenCV units) between hues and a bound."""
+    difference = np.abs(hue - bound)
+    return np.minimum(difference, 180.0 - difference)
+
+
+def _band_term(channel: np.ndarray, low: float, high: float) -> np.ndarray:
+    """1 within [low, high], falling linearly to 0 at 0 below it and at 255 above it."""
+    below = np.where(channel >= low, 1.0, channel / max(low, 1.0))
+    above = np.where(channel <= high, 1.0, (255.0 - channel) / max(255.0 - high, 1.0))
+    return np.clip(np.minimum(below, above), 0.0, 1.0)
+
+
+def find_ball_candidates(cloud: ViewCloud, config: BallConfig) -> ViewBallCandidates:
+    """Find every sphere of about the balls' radius among the points of the balls' colours in one view.
 
     Parameters
     ----------
@@ -404,228 +278,243 @@ def detect_balls(cloud: ViewCloud, config: BallConfig) -> dict[str, SphereFit]:
 
     Returns
     -------
-    dict[str, SphereFit]
-        The fit of each colour, in ``config.colors`` order.
+    ViewBallCandidates
+        Each sphere once, with its fit, its problem if its geometry is not a ball's, and its colour
+        scores; and how many points of each colour the view holds.
+    """
+    scene = _Scene.of(cloud, config)
+    seeds = np.flatnonzero(cloud.has_color & (scene.likelihood.max(axis=0) >= _SEED_LIKELIHOOD))
+    colored_points = {
+        color: int(np.count_nonzero(cloud.has_color & (scene.likelihood[i] >= _SEED_LIKELIHOOD)))
+        for i, color in enumerate(config.colors)
+    }
+    hsv_ranges = {color: config.hsv_range(color) for color in config.colors}
+    if seeds.size < config.min_points:
+        return ViewBallCandidates(
+            view=cloud.view, candidates=(), colored_points=colored_points, hsv_ranges=hsv_ranges
+        )
+    normals, ok = scene.normals(seeds, radius_m=config.radius_m)
+    seeds, normals = seeds[ok], normals[ok]
+    votes = cloud.points_m[seeds] - config.radius_m * normals
+    candidates: list[BallCandidate] = []
+    for i in range(len(config.colors)):
+        of_color = scene.likelihood[i, seeds] >= _SEED_LIKELIHOOD
+        if np.count_nonzero(of_color) < config.min_points:
+            continue
+        sure = seeds[scene.likelihood[i, seeds] >= _SURE_LIKELIHOOD]
+        blobs = _blob_centres(cloud.points_m[sure], cloud.pixels[sure], config.radius_m, config.min_points)
+        for peak in [*_vote_peaks(votes[of_color], scene, config.radius_m), *blobs]:
+            if any(np.linalg.norm(peak - other.fit.center_m) < config.radius_m for other in candidates):
+                continue  # that sphere is known already (found for another colour)
+            candidate = _candidate_at(peak, i, scene, config)
+            if candidate is not None and all(
+                np.linalg.norm(candidate.fit.center_m - other.fit.center_m) > config.radius_m
+                for other in candidates
+            ):
+                candidates.append(candidate)
+    return ViewBallCandidates(
+        view=cloud.view, candidates=tuple(candidates), colored_points=colored_points, hsv_ranges=hsv_ranges
+    )
+
+
+def detect_balls(cloud: ViewCloud, config: BallConfig) -> dict[str, SphereFit]:
+    """Find every calibration ball of ``config.colors`` in one view, from this view alone.
+
+    Each colour takes its likeliest plausible sphere, and no sphere is taken for two colours. The
+    measurement chooses across views instead (:func:`canopy_core.ball_selection.select_balls`).
 
     Raises
     ------
     BallNotFound
         For the first colour whose ball is missing or implausible, naming the view and colour.
     """
-    scene = _Scene.of(cloud)
-    return {color: _detect(scene, color, config) for color in config.colors}
+    from canopy_core.ball_selection import choose_in_view
+
+    chosen = choose_in_view(find_ball_candidates(cloud, config), config)
+    return {color: candidate.fit for color, candidate in chosen.items()}
 
 
 def detect_ball(cloud: ViewCloud, color: str, config: BallConfig) -> SphereFit:
-    """Find the calibration ball of one colour in one view.
-
-    Points of the ball's colour are grouped into blobs (neighbouring depth pixels without a depth jump) and
-    the blobs of a ball's size get a RANSAC centre each. Seeds are tried likeliest first: those whose inliers
-    fill most of the pixels a ball there would cover, and whose radius is nearest the ball's (apples differ
-    mainly in size, and the nearer ones show more points, so a count of points would favour them). Each is
-    refined on every point of the colour near its sphere (so a ball split by a branch in front of it is
-    fitted whole), and the first that passes the checks is the ball: enough points for a ball at that
-    distance, radius, residual, and coverage of its outline (a solid ball hides what is behind it).
-
-    Parameters
-    ----------
-    cloud
-        The view's back-projected points, filtered or not (the fit copes with flying pixels itself).
-    color
-        A colour name with an HSV range in ``config`` (its own or a default one).
-    config
-        Ball size, HSV ranges and detection thresholds.
-
-    Returns
-    -------
-    SphereFit
-        The ball, in the view's depth-camera frame.
+    """Find the calibration ball of one colour in one view: its likeliest plausible sphere.
 
     Raises
     ------
     BallNotFound
-        No point of that colour; too few of them together; no group of them of a ball's size; or, for the
-        likeliest sphere, too few points, or a radius, residual or coverage that is not a ball's.
+        No point of that colour; too few; no sphere of the ball's size among them; or, for the likeliest
+        sphere, too few points for its range, or a radius, residual, coverage or colour that is not a ball's.
     KeyError
         ``color`` has no HSV range.
     """
-    return _detect(_Scene.of(cloud), color, config)
+    candidates = find_ball_candidates(cloud, config.model_copy(update={"colors": [color]}))
+    ranked = candidates.ranked(color, config)
+    if ranked and ranked[0].problem_as(color, config) is None:
+        return ranked[0].fit
+    raise candidates.not_found(color, config)
 
 
 @dataclass(frozen=True)
 class _Scene:
-    """A view's points with what detection needs of them for every colour."""
+    """A view's points with what detection needs of them: colour likelihoods, the pixel grid, intrinsics."""
 
     cloud: ViewCloud
-    hsv: np.ndarray
+    likelihood: np.ndarray
+    """``(colours, N)`` colour likelihood of each point for each configured colour (0 without colour)."""
     point_at_pixel: np.ndarray
     """Depth-image-shaped index of each pixel's point, -1 where none."""
-    pixels_per_steradian: float
-    """The depth camera's ``fx * fy``."""
+    focal_px: tuple[float, float]
+    centre_px: tuple[float, float]
+    """The depth camera's (fx, fy) and (cx, cy), read back from its points."""
 
     @classmethod
-    def of(cls, cloud: ViewCloud) -> _Scene:
+    def of(cls, cloud: ViewCloud, config: BallConfig) -> _Scene:
         rows, cols = cloud.pixels[:, 0], cloud.pixels[:, 1]
         shape = (int(rows.max()) + 1, int(cols.max()) + 1) if len(cloud) else (0, 0)
         point_at_pixel = np.full(shape, -1, dtype=np.int64)
         point_at_pixel[rows, cols] = np.arange(len(cloud))
+        hsv = _to_hsv(cloud.colors_rgb)
+        likelihood = np.stack(
+            [
+                np.where(
+                    cloud.has_color, _likelihood(hsv, config.hsv_range(c), hue_spread=config.hue_spread), 0
+                )
+                for c in config.colors
+            ]
+        )
+        focal, centre = _intrinsics(cloud)
         return cls(
             cloud=cloud,
-            hsv=_to_hsv(cloud.colors_rgb),
+            likelihood=likelihood,
             point_at_pixel=point_at_pixel,
-            pixels_per_steradian=_pixels_per_steradian(cloud),
+            focal_px=focal,
+            centre_px=centre,
         )
 
     def pixels_of_ball(self, centre_m: np.ndarray, radius_m: float) -> float:
         """How many pixels a ball of this radius and centre covers in the image."""
         sine_sq = min((radius_m / float(np.linalg.norm(centre_m))) ** 2, 1.0)
-        return 2.0 * np.pi * (1.0 - np.sqrt(1.0 - sine_sq)) * self.pixels_per_steradian
+        return 2.0 * np.pi * (1.0 - np.sqrt(1.0 - sine_sq)) * self.focal_px[0] * self.focal_px[1]
 
-    def points_around(self, pixels: np.ndarray) -> np.ndarray:
-        """The points in the pixels' bounding box, widened by half its size on every side."""
-        low, high = pixels.min(axis=0), pixels.max(axis=0)
-        margin = (high - low) // 2 + 2
-        low, high = np.maximum(low - margin, 0), high + margin + 1
-        window = self.point_at_pixel[low[0] : high[0], low[1] : high[1]]
-        return self.cloud.points_m[window[window >= 0]]
+    def normals(self, indices: np.ndarray, *, radius_m: float) -> tuple[np.ndarray, np.ndarray]:
+        """Unit surface normals, facing the camera, of the points ``indices``; and which could be estimated.
+
+        Each normal is the least-variance direction of the point and its 8 neighbours at a pixel step
+        that spans ``_NORMAL_BASELINE`` ball radii at the point's range (so the normal of a far ball's
+        point, or of a big ball's, is as precise), among those on the same surface (depth within a radius).
+        """
+        rows, cols = self.cloud.pixels[indices, 0], self.cloud.pixels[indices, 1]
+        centre = self.cloud.points_m[indices]
+        reach_px = _NORMAL_BASELINE * radius_m * self.focal_px[0] / centre[:, 2]
+        step = np.clip(np.rint(reach_px), 1, _MAX_STEP_PX)
+        height, width = self.point_at_pixel.shape
+        window_rows = np.clip(rows[:, None] + step[:, None] * _NEIGHBOUR_OFFSETS[:, 0], 0, height - 1)
+        window_cols = np.clip(cols[:, None] + step[:, None] * _NEIGHBOUR_OFFSETS[:, 1], 0, width - 1)
+        neighbours = self.point_at_pixel[window_rows.astype(np.int64), window_cols.astype(np.int64)]
+        points = self.cloud.points_m[np.maximum(neighbours, 0)]
+        used = (neighbours >= 0) & (np.abs(points[:, :, 2] - centre[:, None, 2]) < radius_m)
+        count = used.sum(axis=1)
+        weights = used[:, :, None].astype(np.float64)
+        mean = (points * weights).sum(axis=1) / np.maximum(count, 1)[:, None]
+        centred = (points - mean[:, None, :]) * weights
+        covariance = np.einsum("nki,nkj->nij", centred, centred)
+        _, vectors = np.linalg.eigh(covariance)
+        normals = vectors[:, :, 0]
+        normals *= np.where(np.einsum("ij,ij->i", normals, centre) > 0.0, -1.0, 1.0)[:, None]
+        return normals, count >= _MIN_NORMAL_NEIGHBOURS
+
+    def window(self, centre_m: np.ndarray, radius_m: float, *, radii: float) -> np.ndarray:
+        """Indices of the points whose pixels lie within ``radii`` projected radii of a sphere's centre."""
+        (fx, fy), (cx, cy) = self.focal_px, self.centre_px
+        depth = max(float(centre_m[2]), 1e-3)
+        column, row = fx * centre_m[0] / depth + cx, fy * centre_m[1] / depth + cy
+        reach = radii * max(fx, fy) * radius_m / depth + 1.0
+        height, width = self.point_at_pixel.shape
+        low_row, high_row = max(int(row - reach), 0), min(int(row + reach) + 1, height)
+        low_col, high_col = max(int(column - reach), 0), min(int(column + reach) + 1, width)
+        if low_row >= high_row or low_col >= high_col:
+            return np.zeros(0, dtype=np.int64)
+        block = self.point_at_pixel[low_row:high_row, low_col:high_col]
+        grid_rows, grid_cols = np.mgrid[low_row:high_row, low_col:high_col]
+        inside = (block >= 0) & ((grid_rows - row) ** 2 + (grid_cols - column) ** 2 <= reach**2)
+        return block[inside]
 
 
-def _pixels_per_steradian(cloud: ViewCloud) -> float:
-    """The depth camera's ``fx * fy``, read back from its points (a pixel's column is ``fx x / z + cx``) at
-    the two points farthest apart in columns, and in rows; NaN when the points span no row or column."""
-    if len(cloud) == 0:
-        return float("nan")
-    product = np.float64(1.0)
+def _intrinsics(cloud: ViewCloud) -> tuple[tuple[float, float], tuple[float, float]]:
+    """The depth camera's focal lengths and principal point, read back from its points by least squares
+    (a pixel's column is ``fx x / z + cx``, its row ``fy y / z + cy``); NaN when the points span no row or
+    column."""
+    if len(cloud) < 2:
+        return (float("nan"), float("nan")), (float("nan"), float("nan"))
+    sample = np.linspace(0, len(cloud) - 1, min(len(cloud), 2000)).astype(np.int64)
+    points, pixels = cloud.points_m[sample], cloud.pixels[sample].astype(np.float64)
+    solved = []
     for axis, pixel_axis in ((0, 1), (1, 0)):
-        ends = [np.argmin(cloud.pixels[:, pixel_axis]), np.argmax(cloud.pixels[:, pixel_axis])]
-        bearings = cloud.points_m[ends, axis] / cloud.points_m[ends, 2]
-        span_px = cloud.pixels[ends[1], pixel_axis] - cloud.pixels[ends[0], pixel_axis]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            product *= span_px / (bearings[1] - bearings[0])
-    return float(product)
+        design = np.column_stack([points[:, axis] / points[:, 2], np.ones(sample.size)])
+        (focal, offset), *_ = np.linalg.lstsq(design, pixels[:, pixel_axis], rcond=None)
+        solved.append((float(focal), float(offset)))
+    (fx, cx), (fy, cy) = solved
+    return (fx, fy), (cx, cy)
 
 
-def _detect(scene: _Scene, color: str, config: BallConfig) -> SphereFit:
-    cloud = scene.cloud
-    hsv_range = config.hsv_range(color)
-    selected = np.flatnonzero(cloud.has_color & _hsv_mask(scene.hsv, hsv_range))
-    if selected.size == 0:
-        raise BallNotFound(
-            f"no {color} point in the view (HSV range {hsv_range})",
-            view=cloud.view,
-            color=color,
-            hint=f"Check that the ball is in view and lit, or adjust calibration_balls.hsv.{color}",
-        )
-    candidates = cloud.points_m[selected]
-    blobs = _ball_sized_blobs(candidates, cloud.pixels[selected], cloud.view, color, config)
-    first_rejection = None
-    for centre, blob in _ranked_seeds(candidates, blobs, scene, config):
-        try:
-            fit = _refine(
-                candidates,
-                centre,
-                config.radius_m,
-                nominal_radius_m=config.radius_m,
-                tolerance_m=_range_tolerance(config.inlier_tolerance_m, centre),
-                scene_m=scene.points_around(cloud.pixels[selected[blob]]),
-            )
-        except ValueError:
-            continue  # the seed's sphere lost its inliers
-        rejection = _rejection(
-            fit, color, config, ball_pixels=scene.pixels_of_ball(fit.center_m, config.radius_m)
-        )
-        if rejection is None:
-            return fit
-        first_rejection = first_rejection or rejection
-    message, hint = first_rejection or (
-        f"no group of {color} points lies on a sphere of about {config.radius_m * 1000:.0f} mm radius",
-        "Something else of that colour may be in view; check balls.diameter_m and the HSV range",
-    )
-    raise BallNotFound(message, view=cloud.view, color=color, hint=hint)
+def _vote_peaks(votes: np.ndarray, scene: _Scene, radius_m: float) -> list[np.ndarray]:
+    """Centres where many votes agree, strongest first, at least a radius apart (non-maximum suppression).
 
-
-def _ranked_seeds(
-    candidates_m: np.ndarray, blobs: list[np.ndarray], scene: _Scene, config: BallConfig
-) -> list[tuple[np.ndarray, np.ndarray]]:
-    """RANSAC centres of the blobs, with their blobs, the likeliest ball first.
-
-    A seed is as likely as the fraction of a ball's pixels its inliers fill (small things of the ball's
-    colour fill few) times a Gaussian of its radius' relative error (``_RADIUS_SPREAD``; apples differ from
-    the ball mainly in size, and the nearer ones fill as many pixels). The radius is that of a linear
-    (algebraic) sphere fit to the seed's inliers: cheap, and close to the geometric fit's on inliers.
+    A vote's strength is the number of votes within ``_VOTE_RADIUS`` radii of it over the pixels a ball
+    centred there would cover, so near and far balls compare alike. Its concentration is the share of the
+    votes within one radius that lie that close: the votes of a sphere gather at a point (0.6-0.9), those of
+    a cylinder of the ball's radius (a post, a trunk) along its axis (about ``_VOTE_RADIUS``), those of a
+    plane over a plane (less).
     """
-    rng = np.random.default_rng(0)
-    ranked: list[tuple[float, np.ndarray, np.ndarray]] = []
-    for blob in blobs:
-        points = candidates_m[blob]
-        try:
-            centre = _ransac_centre(
-                points, config.radius_m, config.inlier_tolerance_m, config.ransac_iterations, rng
-            )
-            inliers = points[_inliers(points, np.append(centre, config.radius_m), config.inlier_tolerance_m)]
-        except ValueError:
-            continue  # no sphere of about the ball's radius in this blob
-        completeness = inliers.shape[0] / scene.pixels_of_ball(centre, config.radius_m)
-        radius_error = (_algebraic_radius(inliers) - config.radius_m) / config.radius_m
-        ranked.append((completeness * np.exp(-0.5 * (radius_error / _RADIUS_SPREAD) ** 2), centre, blob))
-    ranked.sort(key=lambda item: -item[0])
-    return [(centre, blob) for _, centre, blob in ranked]
+    if votes.shape[0] == 0:
+        return []
+    tree = cKDTree(votes)
+    close = tree.query_ball_point(votes, r=_VOTE_RADIUS * radius_m, return_length=True, workers=-1)
+    ranges = np.linalg.norm(votes, axis=1)
+    sine_sq = np.minimum((radius_m / np.maximum(ranges, radius_m)) ** 2, 1.0)
+    expected = 2.0 * np.pi * (1.0 - np.sqrt(1.0 - sine_sq)) * scene.focal_px[0] * scene.focal_px[1]
+    strength = close / np.maximum(expected, 1.0)
+    order = np.flatnonzero(strength >= _MIN_PEAK)
+    around = tree.query_ball_point(votes[order], r=radius_m, return_length=True, workers=-1)
+    order = order[close[order] >= _MIN_CONCENTRATION * around]
+    order = order[np.argsort(-strength[order], kind="stable")]
+    suppressed = np.zeros(votes.shape[0], dtype=bool)
+    peaks: list[np.ndarray] = []
+    for index in order:
+        if suppressed[index]:
+            continue
+        members = tree.query_ball_point(votes[index], r=_VOTE_RADIUS * radius_m)
+        peaks.append(votes[members].mean(axis=0))
+        suppressed[tree.query_ball_point(votes[index], r=radius_m)] = True
+        if len(peaks) == _MAX_PEAKS:
+            break
+    return peaks
 
 
-def _algebraic_radius(points_m: np.ndarray) -> float:
-    """Radius of the linear least-squares sphere ``|p - m|^2 = 2 (p - m).c + k`` (m: the points' mean)."""
-    centred = points_m - points_m.mean(axis=0)
-    design = np.column_stack([2.0 * centred, np.ones(centred.shape[0])])
-    solution, *_ = np.linalg.lstsq(design, np.einsum("ij,ij->i", centred, centred), rcond=None)
-    return float(np.sqrt(max(solution[3] + solution[:3] @ solution[:3], 0.0)))
-
-
-def _ball_sized_blobs(
-    points_m: np.ndarray, pixels: np.ndarray, view: str, color: str, config: BallConfig
+def _blob_centres(
+    points_m: np.ndarray, pixels: np.ndarray, radius_m: float, min_points: int
 ) -> list[np.ndarray]:
-    """Indices of the largest blobs with enough points and about the size of a ball, largest first.
+    """Likely centres of the compact groups of a colour's points that have a ball's size, largest first.
 
-    A blob is a connected group of pixels (8-neighbourhood) whose neighbours differ in depth by less than
-    the ball's radius, so a ball is not joined to a same-coloured object behind it. Its width is its largest
-    extent across the line of sight, at its mean depth; a ball's blob is between one radius (mostly hidden)
-    and ``_MAX_BLOB_WIDTH_RADII`` radii (with something of its colour touching it) across.
-
-    Raises
-    ------
-    BallNotFound
-        When no blob has enough points, or none of those has the size of a ball.
+    The second source of candidates, for small far balls in sun: their few points' normals are too noisy
+    to gather votes, but the points that surely have their colour stand alone. A group is a connected set
+    of pixels (8-neighbourhood) without a depth step of a radius; it is ball-sized when it is one to
+    ``_MAX_BLOB_DIAMETERS`` diameters across at its depth. Its likely centre lies one radius behind its
+    mean point, along the line of sight.
     """
-    labels = _blob_labels(points_m, pixels, max_depth_step_m=config.radius_m)
+    if points_m.shape[0] < min_points:
+        return []
+    labels = _blob_labels(points_m, pixels, max_depth_step_m=radius_m)
     order = np.argsort(labels, kind="stable")
     sizes = np.bincount(labels)
     starts = np.concatenate([[0], np.cumsum(sizes)[:-1]])
-    if sizes.max() < config.min_points:
-        raise BallNotFound(
-            f"too few {color} points: {labels.size} found, at most {sizes.max()} of them together, "
-            f"at least {config.min_points} needed",
-            view=view,
-            color=color,
-            hint="The ball may be hidden, too far or badly lit; move closer or lower balls.min_points",
-        )
     ordered = points_m[order]
     bearings = ordered[:, :2] / ordered[:, 2:3]
     extent = np.maximum.reduceat(bearings, starts, axis=0) - np.minimum.reduceat(bearings, starts, axis=0)
-    width_m = extent.max(axis=1) * np.add.reduceat(ordered[:, 2], starts) / sizes
-    eligible = sizes >= config.min_points
-    narrowest_m, widest_m = config.radius_m, _MAX_BLOB_WIDTH_RADII * config.radius_m
-    plausible = np.flatnonzero(eligible & (width_m >= narrowest_m) & (width_m <= widest_m))
-    if plausible.size == 0:
-        raise BallNotFound(
-            f"no group of {color} points has the size of a ball ({narrowest_m * 1000:.0f} to "
-            f"{widest_m * 1000:.0f} mm across): those of {config.min_points} points or more are "
-            f"{width_m[eligible].min() * 1000:.0f} to {width_m[eligible].max() * 1000:.0f} mm across",
-            view=view,
-            color=color,
-            hint="The ball may be mostly hidden, or something of its colour fills the view; check "
-            "balls.diameter_m and the HSV range",
-        )
-    largest = plausible[np.argsort(sizes[plausible])[::-1][:_MAX_BLOBS]]
-    return [order[starts[label] : starts[label] + sizes[label]] for label in largest]
+    means = np.add.reduceat(ordered, starts, axis=0) / sizes[:, None]
+    width_m = extent.max(axis=1) * means[:, 2]
+    sized = (sizes >= min_points) & (width_m >= radius_m) & (width_m <= 2 * _MAX_BLOB_DIAMETERS * radius_m)
+    chosen = np.flatnonzero(sized)[np.argsort(-sizes[sized])][:_MAX_PEAKS]
+    rays = means[chosen] / np.linalg.norm(means[chosen], axis=1, keepdims=True)
+    return list(means[chosen] + radius_m * rays)
 
 
 def _blob_labels(points_m: np.ndarray, pixels: np.ndarray, *, max_depth_step_m: float) -> np.ndarray:
@@ -645,21 +534,90 @@ def _blob_labels(points_m: np.ndarray, pixels: np.ndarray, *, max_depth_step_m: 
         targets.append(neighbour[linked])
     source, target = np.concatenate(sources), np.concatenate(targets)
     graph = coo_matrix((np.ones(source.size, dtype=np.int8), (source, target)), shape=(keys.size, keys.size))
-    return connected_components(graph, directed=False)[1]
+    return np.asarray(connected_components(graph, directed=False)[1])
 
 
-def _rejection(
-    fit: SphereFit, color: str, config: BallConfig, *, ball_pixels: float
-) -> tuple[str, str] | None:
-    """Why a fit is not taken for the ball (message and hint), or None when it is plausible.
+def _candidate_at(peak: np.ndarray, color: int, scene: _Scene, config: BallConfig) -> BallCandidate | None:
+    """The sphere near a vote peak of the votes of colour ``color`` (its index), described; None when no
+    sphere of the radius holds there.
 
-    ``ball_pixels`` is the number of pixels a ball at the fit's centre would cover.
+    The sphere is fitted to the points near the peak that surely have the colour (likelihood at least
+    ``_SURE_LIKELIHOOD``; all those that may have it when they are too few), and then counted on all that
+    may have it (at least ``_MAYBE_LIKELIHOOD``): a ball's shaded side adds to its points, while the mixed
+    pixels at its rim, whose colour is part background, do not pull its centre. Points the colour camera
+    does not see count as both.
     """
-    if fit.points < max(config.min_points, _MIN_COMPLETENESS * ball_pixels):
+    radius = config.radius_m
+    window = scene.window(peak, radius, radii=_NEAR_RADII + 0.5)
+    points = scene.cloud.points_m[window]
+    unseen = ~scene.cloud.has_color[window]
+    likelihood = scene.likelihood[color, window]
+    near = np.linalg.norm(points - peak, axis=1) < _NEAR_RADII * radius
+    maybe = points[near & ((likelihood >= _MAYBE_LIKELIHOOD) | unseen)]
+    sure = points[near & ((likelihood >= _SURE_LIKELIHOOD) | unseen)]
+    outline = scene.cloud.points_m[scene.window(peak, radius, radii=_OUTLINE_RADII + 0.5)]
+    fit = None
+    for fitted in (sure, maybe) if sure.shape[0] >= config.min_points else (maybe,):
+        try:
+            fit = _fit_near(fitted, outline, config)
+            break
+        except ValueError:
+            continue  # no sphere of about the radius through these points
+    if fit is None:
+        return None
+    tolerance = _range_tolerance(config.inlier_tolerance_m, fit.center_m)
+    on_sphere = window[near][(likelihood[near] >= _MAYBE_LIKELIHOOD) | unseen[near]]
+    on_sphere = on_sphere[sphere_inliers(maybe, np.append(fit.center_m, radius), tolerance, minimum=0)]
+    colored = on_sphere[scene.cloud.has_color[on_sphere]]
+    scores = {
+        name: float(scene.likelihood[i, colored].mean()) if colored.size else 0.0
+        for i, name in enumerate(config.colors)
+    }
+    fit = replace(fit, points=max(fit.points, int(on_sphere.size)))
+    expected = scene.pixels_of_ball(fit.center_m, radius)
+    problem, hint = _geometry_problem(fit, config, expected_points=expected) or (None, None)
+    return BallCandidate(fit=fit, expected_points=expected, color_scores=scores, problem=problem, hint=hint)
+
+
+def _fit_near(points: np.ndarray, outline: np.ndarray, config: BallConfig) -> SphereFit:
+    """RANSAC then robust least squares on ``points``; ``outline`` holds every point seen around them.
+
+    Raises
+    ------
+    ValueError
+        When no sphere of about the radius holds four of the points.
+    """
+    if points.shape[0] < 4:
+        raise ValueError(f"{points.shape[0]} points cannot fix a sphere")
+    centre = ransac_centre(
+        points, config.radius_m, config.inlier_tolerance_m, config.ransac_iterations, np.random.default_rng(0)
+    )
+    fit, _ = refine_sphere(
+        points,
+        centre,
+        config.radius_m,
+        nominal_radius_m=config.radius_m,
+        tolerance_m=_range_tolerance(config.inlier_tolerance_m, centre),
+        scene_m=outline,
+    )
+    return fit
+
+
+def _range_tolerance(tolerance_m: float, centre: np.ndarray) -> float:
+    """The inlier tolerance for a ball at ``centre`` (camera frame): widened as range² past the reference."""
+    return tolerance_m * max(1.0, (float(np.linalg.norm(centre)) / _TOLERANCE_REFERENCE_RANGE_M) ** 2)
+
+
+def _geometry_problem(
+    fit: SphereFit, config: BallConfig, *, expected_points: float
+) -> tuple[str, str] | None:
+    """Why a sphere is not a calibration ball by its shape (message and hint), or None when it could be."""
+    needed = max(config.min_points, int(np.ceil(config.min_completeness * expected_points)))
+    if fit.points < needed:
         return (
-            f"too few {color} points on a sphere: {fit.points} found, where a ball "
-            f"{np.linalg.norm(fit.center_m):.1f} m away would show about {ball_pixels:.0f} (at least "
-            f"{max(config.min_points, int(np.ceil(_MIN_COMPLETENESS * ball_pixels)))} needed)",
+            f"too few points on a sphere: {fit.points} found, where a ball "
+            f"{np.linalg.norm(fit.center_m):.1f} m away would show about {expected_points:.0f} (at least "
+            f"{needed} needed)",
             "The ball may be mostly hidden or badly lit, or something smaller of its colour was found",
         )
     if abs(fit.radius_m - config.radius_m) > config.max_radius_error * config.radius_m:
@@ -673,7 +631,7 @@ def _rejection(
             f"sphere fit residual {fit.rms_m * 1000:.1f} mm exceeds {config.max_rms_m * 1000:.1f} mm",
             "The ball's surface is too noisy or partly hidden; move closer or raise balls.max_rms_m",
         )
-    if fit.coverage < _MIN_COVERAGE:
+    if fit.coverage < config.min_coverage:
         return (
             f"only {fit.coverage:.0%} of the points seen through the fitted sphere's outline lie on it, "
             f"where a ball shows nearly all: it spans unrelated surfaces, or the depth there is too noisy",

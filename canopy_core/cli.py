@@ -106,12 +106,25 @@ def simulate(
     seed: Annotated[int, typer.Option(help="Random seed; the same seed writes the same captures.")] = 0,
     count: Annotated[int, typer.Option(min=1, help="Number of trees.")] = 1,
     views: Annotated[int, typer.Option(min=1, help="Views per tree.")] = 2,
+    scenario: Annotated[
+        str,
+        typer.Option(
+            help="Scene family: green (plain), dry (straw, soil, mulch, fallen leaves), fruit (apples), "
+            "wires (trellis), weeds (weeds and suckers), harsh (hard sun, shadows), mixed (any of them)."
+        ),
+    ] = "green",
 ) -> None:
     """Write synthetic captures of procedural apple trees, each with its ground_truth.json."""
     from canopy_core.simulate import simulate_captures
+    from canopy_core.simulate.scenario import parse_scenario
 
     try:
-        paths = simulate_captures(out, seed=seed, count=count, n_views=views)
+        family = parse_scenario(scenario)
+    except ValueError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from exc
+    try:
+        paths = simulate_captures(out, seed=seed, count=count, n_views=views, scenario=family)
     except FileExistsError as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from exc

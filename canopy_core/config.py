@@ -89,6 +89,47 @@ class BallConfig(BallSet):
         0.012, gt=0.0, description="Largest RMS distance of inliers to the fitted sphere."
     )
     ransac_iterations: int = Field(300, ge=10)
+    hue_spread: float = Field(
+        8.0,
+        gt=0.0,
+        le=90.0,
+        description="Hue distance outside a colour's HSV range (OpenCV units: 180 = a full turn) at which a "
+        "point's colour likelihood falls to exp(-1/2): white-balance drift and shade move a ball's hue.",
+    )
+    min_color_score: float = Field(
+        0.3,
+        gt=0.0,
+        le=1.0,
+        description="Least mean colour likelihood of a sphere's points for it to be taken for that colour's "
+        "ball.",
+    )
+    min_completeness: float = Field(
+        0.3,
+        gt=0.0,
+        le=1.0,
+        description="Least fraction of the pixels a ball at the fitted centre would cover that must lie on "
+        "it.",
+    )
+    min_coverage: float = Field(
+        0.6,
+        gt=0.0,
+        le=1.0,
+        description="Least fraction of the points seen through a sphere's outline that lie on it (a solid "
+        "ball hides what is behind it; a sphere through unrelated surfaces does not).",
+    )
+    max_ground_gap_m: float = Field(
+        0.25,
+        gt=0.0,
+        description="A ball rests on the ground, its centre one radius above it; a sphere whose centre "
+        "stands more than this higher above the view's ground plane (undulations, grass, the plane's error) "
+        "is not a calibration ball (an apple in the crown).",
+    )
+    max_distance_mismatch_m: float = Field(
+        0.02,
+        gt=0.0,
+        description="The balls' mutual distances agree between views within this: detection errs by a few "
+        "mm; a moved ball or a look-alike taken for one differs by more.",
+    )
 
     @property
     def radius_m(self) -> float:

@@ -19,10 +19,12 @@ from canopy_core.config import GroundConfig
 __all__ = [
     "GroundFrame",
     "GroundHeightMap",
+    "GroundPlane",
     "ball_plane",
     "fit_ground_frame",
     "ground_height_map",
     "horizontal_distance",
+    "view_ground_plane",
 ]
 
 _MAX_GROUND_TILT_DEG = 15.0
@@ -32,6 +34,10 @@ _RANSAC_HYPOTHESES = 200
 _TRUNK_SLICE_M = (0.12, 0.35)
 _TRUNK_SEARCH_RADIUS_M = 0.8
 _TRUNK_EXCLUSION_M = 0.12
+_MAX_VIEW_TILT_DEG = 45.0
+"""A view's ground is within this of the camera's up: crews hold the camera roughly level."""
+_MIN_VIEW_GROUND_SHARE = 0.05
+"""A view's ground plane holds at least this share of its points (floors fill a fifth to a half of a view)."""
 
 
 @dataclass(frozen=True)
@@ -72,10 +78,13 @@ def _plane_fit(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return centroid, vt[2]
 
 
-def _ransac_ground(points: np.ndarray, tolerance_m: float) -> np.ndarray:
+def _ransac_ground(
+    points: np.ndarray, tolerance_m: float, *, up: np.ndarray | None = None, max_tilt_deg: float = 90.0
+) -> np.ndarray:
     """Indices (into ``points``) of the inliers of the plane with most points within ``tolerance_m``.
 
-    All hypotheses (planes through three random points) are scored at once on a sample of the points.
+    All hypotheses (planes through three random points, tilted at most ``max_tilt_deg`` from ``up`` when
+    it is given) are scored at once on a sample of the points.
     """
     rng = np.random.default_rng(0)
     sample = (
@@ -88,12 +97,59 @@ def _ransac_ground(points: np.ndarray, tolerance_m: float) -> np.ndarray:
     length = np.linalg.norm(normals, axis=1)
     usable = length > 1e-9
     normals = normals[usable] / length[usable, None]
-    offsets = -np.einsum("ij,ij->i", normals, triples[usable, 0])
+    triples = triples[usable]
+    if up is not None:
+        level = np.abs(normals @ up) >= np.cos(np.radians(max_tilt_deg))
+        normals, triples = normals[level], triples[level]
+    if normals.shape[0] == 0:
+        return np.zeros(0, dtype=np.int64)
+    offsets = -np.einsum("ij,ij->i", normals, triples[:, 0])
     scores = [
         np.count_nonzero(np.abs(sample @ n + d) < tolerance_m) for n, d in zip(normals, offsets, strict=True)
     ]
     best = int(np.argmax(scores))
     return np.flatnonzero(np.abs(points @ normals[best] + offsets[best]) < tolerance_m)
+
+
+@dataclass(frozen=True)
+class GroundPlane:
+    """A ground plane: a point on it and its unit normal pointing up, in some frame (metres)."""
+
+    point_m: np.ndarray
+    normal: np.ndarray
+
+    def height_of(self, point_m: np.ndarray) -> float:
+        """Height of a point above the plane, metres."""
+        return float((point_m - self.point_m) @ self.normal)
+
+
+def view_ground_plane(
+    points_m: np.ndarray,
+    *,
+    up_hint: np.ndarray,
+    tolerance_m: float,
+    max_tilt_deg: float = _MAX_VIEW_TILT_DEG,
+    min_share: float = _MIN_VIEW_GROUND_SHARE,
+) -> GroundPlane | None:
+    """The ground plane one view sees, in its camera frame, before anything else is known of the scene.
+
+    The largest plane tilted at most ``max_tilt_deg`` from ``up_hint`` (the camera's up, -y, for a camera
+    held roughly level): looking across an orchard row, that is the floor; the row's fruit wall and posts are
+    near vertical and crowns are not planes. Used to tell a ball resting on the ground from an apple in a
+    crown.
+
+    Returns
+    -------
+    GroundPlane or None
+        None when no such plane holds ``min_share`` of the points.
+    """
+    if points_m.shape[0] < 50:
+        return None
+    inliers = _ransac_ground(points_m, tolerance_m, up=up_hint, max_tilt_deg=max_tilt_deg)
+    if inliers.size < max(50, min_share * points_m.shape[0]):
+        return None
+    point, normal = _plane_fit(points_m[inliers])
+    return GroundPlane(point_m=point, normal=normal if normal @ up_hint > 0 else -normal)
 
 
 def fit_ground_frame(

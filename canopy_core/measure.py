@@ -19,7 +19,8 @@ import numpy as np
 from pydantic import ValidationError
 
 from canopy_core.backproject import ViewCloud, backproject
-from canopy_core.balls import SphereFit, detect_balls
+from canopy_core.ball_selection import select_balls
+from canopy_core.balls import find_ball_candidates
 from canopy_core.capture import Capture, CaptureManifest, View, load_capture
 from canopy_core.config import FilterConfig, MeasureConfig
 from canopy_core.errors import CaptureError, ConfigError, MeasurementError, RegistrationFailed
@@ -30,11 +31,13 @@ from canopy_core.ground import (
     fit_ground_frame,
     ground_height_map,
     horizontal_distance,
+    view_ground_plane,
 )
 from canopy_core.metrics import CanopyMetrics, canopy_metrics
 from canopy_core.refine import IcpRefinement, refine_views
 from canopy_core.register import apply, register_by_balls
 from canopy_core.segment import tree_component
+from canopy_core.spheres import SphereFit
 
 __all__ = ["STAGES", "Measurement", "Progress", "ViewDiagnostics", "config_for", "filtered_cloud", "measure"]
 
@@ -44,9 +47,8 @@ Progress = Callable[[str, float], None]
 STAGES = ("load", "filter", "balls", "register", "ground", "refine", "metrics", "done")
 
 MERGED = "merged"
-_MAX_BALL_DISTANCE_ERROR_M = 0.02
-"""Distances between ball centres that differ between views by more than this mean a ball moved or was
-mistaken: detection errors are a few millimetres."""
+_CAMERA_UP = np.array([0.0, -1.0, 0.0])
+"""Up for a camera held roughly level, in its own frame (OpenCV axes: y points down)."""
 _GROUND_SAMPLE = 60_000
 _TREE_CLEARANCE_M = 0.12
 """Tree points start this high above the ground: below it are the ground, grass and the balls."""
@@ -223,11 +225,21 @@ def measure(
     clouds = [filtered_cloud(view, config.filters) for view in capture.views]
 
     stages.start("balls")
-    balls = [detect_balls(cloud, config.balls) for cloud in clouds]
+    choices = select_balls(
+        [find_ball_candidates(cloud, config.balls) for cloud in clouds],
+        config.balls,
+        grounds=[
+            view_ground_plane(
+                cloud.points_m, up_hint=_CAMERA_UP, tolerance_m=config.ground.inlier_tolerance_m
+            )
+            for cloud in clouds
+        ],
+    )
+    balls = [{color: candidate.fit for color, candidate in choice.chosen.items()} for choice in choices]
 
     stages.start("register")
     centres = [np.array([found[color].center_m for color in colors]) for found in balls]
-    view_to_reference = _register_by_balls([view.name for view in capture.views], centres, config)
+    view_to_reference = [register_by_balls(view_centres, centres[0]) for view_centres in centres]
 
     stages.start("ground")
     ground = _ground_frame(clouds, view_to_reference, centres[0], config)
@@ -306,18 +318,6 @@ def filtered_cloud(view: View, filters: FilterConfig) -> ViewCloud:
     return backproject(view, keep=keep)
 
 
-def _register_by_balls(
-    views: list[str], centres: list[np.ndarray], config: MeasureConfig
-) -> list[np.ndarray]:
-    """Each view's pose in the first view's frame from its ball centres, after checking the balls agree."""
-    colors = config.balls.colors
-    for view, view_centres in zip(views, centres, strict=True):
-        _check_ball_spacing(view, view_centres, colors, config.balls.diameter_m)
-    for view, view_centres in zip(views[1:], centres[1:], strict=True):
-        _check_ball_distances(view, view_centres, centres[0], colors)
-    return [register_by_balls(view_centres, centres[0]) for view_centres in centres]
-
-
 def _modes(
     capture: Capture,
     roi_points: list[np.ndarray],
@@ -341,49 +341,6 @@ def _modes(
     return modes
 
 
-def _check_ball_spacing(view: str, centres: np.ndarray, colors: list[str], diameter_m: float) -> None:
-    """Balls found closer than one diameter apart are one ball taken twice (overlapping colour ranges)."""
-    for first in range(len(colors)):
-        for second in range(first + 1, len(colors)):
-            if np.linalg.norm(centres[first] - centres[second]) < diameter_m:
-                raise RegistrationFailed(
-                    f"the {colors[first]} and {colors[second]} balls were found at the same place",
-                    view=view,
-                    field="calibration_balls.hsv",
-                    hint="their colour ranges overlap, or the balls touch; separate them",
-                )
-    spread = np.linalg.svd(centres - centres.mean(axis=0), compute_uv=False)
-    if spread[1] < 0.2 * diameter_m:
-        raise RegistrationFailed(
-            "the balls stand in a line, so they do not fix the view's orientation",
-            view=view,
-            hint="lay the balls in a triangle around the trunk",
-        )
-
-
-def _check_ball_distances(view: str, centres: np.ndarray, reference: np.ndarray, colors: list[str]) -> None:
-    """The balls' mutual distances are the same from every side; a ball whose distances differ is wrong.
-
-    Raises RegistrationFailed naming the view and the colour of the ball in most of the disagreeing pairs
-    (a moved ball, or something else of its colour taken for it).
-    """
-    here = np.linalg.norm(centres[:, None] - centres[None, :], axis=2)
-    there = np.linalg.norm(reference[:, None] - reference[None, :], axis=2)
-    disagreement = np.abs(here - there)
-    if disagreement.max() <= _MAX_BALL_DISTANCE_ERROR_M:
-        return
-    worst = int(
-        np.argmax((disagreement > _MAX_BALL_DISTANCE_ERROR_M).sum(axis=1) + disagreement.sum(axis=1) / 10)
-    )
-    raise RegistrationFailed(
-        f"the {colors[worst]} ball's distances to the other balls differ from the first view's by up to "
-        f"{disagreement[worst].max() * 1000:.0f} mm",
-        view=view,
-        hint=f"the {colors[worst]} ball was moved between views, something else of its colour was taken for "
-        "it, or it was too far or too poorly lit to fit well; check with `canopy balls`",
-    )
-
-
 def _ball_residual(pose: np.ndarray, centres: np.ndarray, reference: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.sum((apply(pose, centres) - reference) ** 2, axis=1))))
 
@@ -405,7 +362,7 @@ def _ground_frame(
         np.concatenate(sample),
         ball_centres,
         ball_radius_m=config.balls.radius_m,
-        up_hint=np.array([0.0, -1.0, 0.0]),
+        up_hint=_CAMERA_UP,
         forward_hint=np.array([0.0, 0.0, 1.0]),
         search_radius_m=config.roi.radius_m,
         config=config.ground,

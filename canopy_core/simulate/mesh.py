@@ -1,7 +1,7 @@
 """Triangle meshes with a colour and a surface kind per triangle, and the primitives the scene is built from.
 
-Every object of the synthetic orchard (ground, bark, leaves, posts) is one of these meshes; the renderer
-looks a hit triangle's colour and kind up by its index, so a mesh carries them per triangle.
+Every object of the synthetic orchard (ground, bark, leaves, posts, wires, weeds) is one of these meshes;
+the renderer looks a hit triangle's colour and kind up by its index, so a mesh carries them per triangle.
 """
 
 from __future__ import annotations
@@ -25,6 +25,8 @@ class SurfaceKind(IntEnum):
     LEAF = 2
     POST = 3
     BALL = 4
+    FRUIT = 5
+    WIRE = 6
 
 
 @dataclass(frozen=True, eq=False)
@@ -91,7 +93,7 @@ def tube(
     kind: SurfaceKind,
     sides: int = 8,
 ) -> Mesh:
-    """A tube of circular section along a polyline: trunks, branches and posts.
+    """A tube of circular section along a polyline: trunks, branches, posts, wires and shoots.
 
     Parameters
     ----------

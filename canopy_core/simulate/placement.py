@@ -3,12 +3,14 @@
 The balls are laid on the ground 0.35-0.8 m from the trunk; each camera stands 2.6-4.0 m from the trunk,
 0.8-1.6 m above the ground, looks at the trunk (a few degrees of yaw and roll jitter) and is pitched so
 that the whole main tree lies inside the depth image and the balls inside both images. A layout is kept
-only if ray casting finds at least :data:`MIN_BALL_PIXELS` pixels of every ball in every depth image;
-otherwise the balls and cameras are drawn again.
+only if ray casting finds at least :data:`MIN_BALL_PIXELS` pixels of every ball in every depth image,
+with everything else of the scene in place (weeds and wires in the mesh, apples in the crown, and the
+objects laid beside the balls, such as fallen apples); otherwise the balls and cameras are drawn again.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -39,11 +41,13 @@ _POSE_ATTEMPTS = 40
 
 @dataclass(frozen=True, eq=False)
 class Layout:
-    """The balls (red, yellow, blue) and the depth cameras' poses, with each ball's pixel count per view."""
+    """The balls (red, yellow, blue) and the depth cameras' poses, with each ball's pixel count per view, and
+    the spheres laid beside the balls (see :func:`place_balls_and_cameras`)."""
 
     balls: tuple[Sphere, ...]
     poses: tuple[CameraPose, ...]
     ball_pixels: tuple[tuple[int, ...], ...]
+    beside_balls: tuple[Sphere, ...] = ()
 
 
 def view_azimuths(rng: np.random.Generator, n_views: int) -> np.ndarray:
@@ -146,10 +150,11 @@ def _framed_pose(
 
 
 def _ball_pixel_counts(
-    raycaster: SceneRaycaster, pose: CameraPose, intrinsics: Intrinsics
+    raycaster: SceneRaycaster, pose: CameraPose, intrinsics: Intrinsics, ball_count: int
 ) -> tuple[int, ...]:
+    """Pixels of each of the first ``ball_count`` spheres (the balls) in a camera."""
     surface = raycaster.cast_camera(pose, intrinsics).surface
-    return tuple(int((surface == raycaster.sphere_surface(i)).sum()) for i in range(len(raycaster.spheres)))
+    return tuple(int((surface == raycaster.sphere_surface(i)).sum()) for i in range(ball_count))
 
 
 def place_balls_and_cameras(
@@ -160,6 +165,7 @@ def place_balls_and_cameras(
     *,
     n_views: int,
     native_color: bool,
+    beside_balls: Callable[[tuple[Sphere, ...]], tuple[Sphere, ...]] | None = None,
 ) -> Layout:
     """Draw balls and camera poses until every view frames the tree and sees every ball.
 
@@ -168,11 +174,14 @@ def place_balls_and_cameras(
     rng
         Source of every random draw.
     orchard
-        The scene; ``raycaster`` must hold its mesh.
+        The scene; ``raycaster`` must hold its mesh and any spheres that belong to it (apples in the crown).
     rig
         The sensor's intrinsics (the colour image must hold the balls too when ``native_color``).
     n_views
         Number of views.
+    beside_balls
+        Given the balls just drawn, the spheres to lay beside them (fallen apples); they are in the scene
+        when the balls' visibility is checked. None: nothing.
 
     Raises
     ------
@@ -194,10 +203,11 @@ def place_balls_and_cameras(
             poses.append(pose)
         if len(poses) < n_views:
             continue
-        with_balls = raycaster.with_spheres(balls)
-        counts = tuple(_ball_pixel_counts(with_balls, pose, rig.depth) for pose in poses)
+        beside = () if beside_balls is None else beside_balls(balls)
+        with_balls = raycaster.with_spheres((*balls, *raycaster.spheres, *beside))
+        counts = tuple(_ball_pixel_counts(with_balls, pose, rig.depth, len(balls)) for pose in poses)
         if min(min(per_view) for per_view in counts) >= MIN_BALL_PIXELS:
-            return Layout(balls=balls, poses=tuple(poses), ball_pixels=counts)
+            return Layout(balls=balls, poses=tuple(poses), ball_pixels=counts, beside_balls=beside)
     raise RuntimeError(
         f"no layout in {_LAYOUT_ATTEMPTS} attempts frames the tree and shows every ball to every view"
     )

@@ -1,11 +1,14 @@
 """The orchard around the measured tree: ground, the neighbouring trees of the row, trellis posts, the balls.
 
 World frame: z up, x along the row, y across it, the main tree's trunk base at the origin on the ground.
+The scenario families of :mod:`.scenario` dress this orchard (other ground colours, wires, weeds, fallen
+leaves) through :meth:`Orchard.dressed`.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -15,7 +18,15 @@ from canopy_core.simulate.mesh import Mesh, SurfaceKind, hsv_to_rgb, merge_meshe
 from canopy_core.simulate.raycast import Sphere
 from canopy_core.simulate.tree import Tree, build_tree, random_tree_shape
 
-__all__ = ["BALL_COLORS", "BALL_DIAMETER_M", "Orchard", "build_orchard", "resting_balls"]
+__all__ = [
+    "BALL_COLORS",
+    "BALL_DIAMETER_M",
+    "Orchard",
+    "build_orchard",
+    "post_span_m",
+    "resting_balls",
+    "trellis_post",
+]
 
 BALL_DIAMETER_M = 0.10
 BALL_COLORS: dict[str, tuple[int, int, int]] = {
@@ -31,17 +42,41 @@ _GAP_MARGIN_M = 0.05
 """Neighbour triangles are removed within the gap plus this, so that no triangle's inside comes closer."""
 _POST_MIN_DISTANCE_M = 1.6
 _POST_CHANCE = 0.7
+_POST_HEIGHT_M = (2.1, 2.3)
 
 
 @dataclass(frozen=True, eq=False)
 class Orchard:
-    """Everything in the scene but the balls; ``mesh`` holds it all for the renderer."""
+    """Everything in the scene but the balls; ``mesh`` holds it all for the renderer, the ground's triangles
+    first."""
 
     ground: Ground
     main_tree: Tree
     neighbours: tuple[Tree, ...]
     post_positions: tuple[tuple[float, float, float], ...]
     mesh: Mesh
+
+    def dressed(
+        self,
+        *,
+        ground_colors: np.ndarray | None = None,
+        extras: Sequence[Mesh] = (),
+        post_positions: Sequence[tuple[float, float, float]] = (),
+    ) -> Orchard:
+        """The orchard with its ground repainted in ``ground_colors`` (one RGB row per ground triangle; as it
+        is if None), ``extras`` (wires, weeds, fallen leaves, more posts) added to its mesh and the posts at
+        ``post_positions`` added to its list."""
+        ground, colors = self.ground, self.mesh.colors
+        if ground_colors is not None:
+            ground_mesh = replace(ground.mesh, colors=np.asarray(ground_colors, dtype=np.float32))
+            ground = replace(ground, mesh=ground_mesh)
+            colors = np.concatenate([ground_mesh.colors, colors[ground_mesh.triangle_count :]])
+        return replace(
+            self,
+            ground=ground,
+            post_positions=(*self.post_positions, *post_positions),
+            mesh=merge_meshes([replace(self.mesh, colors=colors), *extras]),
+        )
 
 
 def _neighbour(rng: np.random.Generator, ground: Ground, main_points: cKDTree, side: int) -> Tree:
@@ -60,11 +95,14 @@ def _neighbour(rng: np.random.Generator, ground: Ground, main_points: cKDTree, s
     )
 
 
-def _post(rng: np.random.Generator, ground: Ground, x: float) -> tuple[Mesh, tuple[float, float, float]]:
-    """A wooden trellis post about 10 cm thick and 2.2 m tall, standing in the row at ``x``."""
+def trellis_post(
+    rng: np.random.Generator, ground: Ground, x: float, *, height_m: tuple[float, float] = _POST_HEIGHT_M
+) -> tuple[Mesh, tuple[float, float, float]]:
+    """A wooden trellis post about 10 cm thick standing in the row at ``x``, its height above the ground
+    drawn from ``height_m`` (2.1-2.3 m by default), and the ground point at its foot."""
     y = rng.normal(0.0, 0.03)
     ground_z = float(ground.height_at(x, y))
-    top_z = ground_z + rng.uniform(2.1, 2.3)
+    top_z = ground_z + rng.uniform(*height_m)
     radius = rng.uniform(0.045, 0.055)
     centreline = np.array([[x, y, ground_z - 0.3], [x, y, top_z], [x, y, top_z + 0.005]])
     color = hsv_to_rgb(
@@ -74,25 +112,35 @@ def _post(rng: np.random.Generator, ground: Ground, x: float) -> tuple[Mesh, tup
     return mesh, (x, y, ground_z)
 
 
-def build_orchard(rng: np.random.Generator) -> Orchard:
+def post_span_m(neighbour: Tree) -> tuple[float, float]:
+    """How far from the main trunk (along x) a post may stand on the side of ``neighbour``."""
+    return _POST_MIN_DISTANCE_M, min(2.4, abs(float(neighbour.base[0])) - 0.8)
+
+
+def build_orchard(rng: np.random.Generator, *, posts: bool = True) -> Orchard:
     """Draw a stretch of orchard row: ground, the main tree at the origin, a neighbour on each side
-    3-4 m away along x, and trellis posts between them at least 1.6 m from the main trunk."""
+    3-4 m away along x, and (if ``posts``; a trellis with wires brings its own) trellis posts between them
+    at least 1.6 m from the main trunk."""
     ground = random_ground(rng)
     main_tree = build_tree(random_tree_shape(rng), rng, base=np.zeros(3))
     main_points = cKDTree(main_tree.mesh.vertices)
     neighbours = tuple(_neighbour(rng, ground, main_points, side) for side in (-1, 1))
-    posts: list[tuple[Mesh, tuple[float, float, float]]] = []
+    post_meshes: list[tuple[Mesh, tuple[float, float, float]]] = []
     for side, neighbour in zip((-1, 1), neighbours, strict=True):
-        if rng.random() < _POST_CHANCE:
-            farthest_m = min(2.4, abs(float(neighbour.base[0])) - 0.8)
-            posts.append(_post(rng, ground, side * rng.uniform(_POST_MIN_DISTANCE_M, farthest_m)))
+        if posts and rng.random() < _POST_CHANCE:
+            post_meshes.append(trellis_post(rng, ground, side * rng.uniform(*post_span_m(neighbour))))
     return Orchard(
         ground=ground,
         main_tree=main_tree,
         neighbours=neighbours,
-        post_positions=tuple(position for _, position in posts),
+        post_positions=tuple(position for _, position in post_meshes),
         mesh=merge_meshes(
-            [ground.mesh, main_tree.mesh, *(tree.mesh for tree in neighbours), *(mesh for mesh, _ in posts)]
+            [
+                ground.mesh,
+                main_tree.mesh,
+                *(tree.mesh for tree in neighbours),
+                *(mesh for mesh, _ in post_meshes),
+            ]
         ),
     )
 

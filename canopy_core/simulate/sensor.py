@@ -25,7 +25,15 @@ Depth model (a time-of-flight camera; sources and assumptions):
 Colour model: Lambertian reflectance lit by a sky term (brighter on upward-facing surfaces) plus the sun,
 leaves also lit through from behind, the sky a pale blue gradient; then Gaussian brightness noise per
 pixel. Shading only scales a colour, so the balls keep their hue and saturation (their shaded side is
-darker); no cast shadows.
+darker). Optionally (the scenario families of :mod:`.scenario`):
+
+- **Cast shadows.** A :class:`~canopy_core.simulate.raycast.ShadowCaster` tells which hit points see the
+  sun; the others get sky light only, in colour and in the depth noise the sun causes.
+- **Hard light.** ``Sunlight.skylight_scale`` and ``direct_scale`` weaken the sky and strengthen the sun
+  (a clear sky), so that shadows are deep.
+- **The colour camera's automatic exposure and white balance** (:class:`CameraResponse`): per-channel gains
+  and an exposure scale on the linear colour, then a contrast curve about mid grey, then 8-bit clipping,
+  so that highlights burn out and shadows sink towards black.
 """
 
 from __future__ import annotations
@@ -36,10 +44,11 @@ import numpy as np
 
 from canopy_core.simulate.camera import CameraPose, KinectRig
 from canopy_core.simulate.mesh import SurfaceKind
-from canopy_core.simulate.raycast import RayHits, SceneRaycaster
+from canopy_core.simulate.raycast import RayHits, SceneRaycaster, ShadowCaster
 
 __all__ = [
     "DEPTH_SUBPIXEL_OFFSETS",
+    "CameraResponse",
     "SensorFrame",
     "Sunlight",
     "axial_noise_sigma_m",
@@ -69,6 +78,8 @@ _SKYLIGHT = (0.45, 0.25)
 _SUN_GAIN = 0.55
 _LEAF_TRANSMISSION = 0.3
 _COLOR_NOISE = 0.008
+_MID_GREY = 0.5
+"""The contrast curve of :class:`CameraResponse` leaves this linear level unchanged."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -81,10 +92,30 @@ class SensorFrame:
 
 @dataclass(frozen=True)
 class Sunlight:
-    """Direct sunlight: ``strength`` 0 (overcast) to 1 (full sun), ``direction`` the unit vector to it."""
+    """Direct sunlight: ``strength`` 0 (overcast) to 1 (full sun), ``direction`` the unit vector to it.
+
+    ``skylight_scale`` and ``direct_scale`` multiply the sky's and the sun's irradiance in the colour
+    image (1: the usual hazy summer light; a clear sky gives less sky light and a harder sun).
+    """
 
     strength: float
     direction: tuple[float, float, float]
+    skylight_scale: float = 1.0
+    direct_scale: float = 1.0
+
+
+@dataclass(frozen=True)
+class CameraResponse:
+    """How the colour camera turned light into pixel values in one view: automatic white balance and
+    exposure, and its tone curve.
+
+    Linear RGB is multiplied by ``gains`` (red, green, blue) and by ``exposure``; then a level x becomes
+    0.5 * (x / 0.5) ** ``contrast`` (above 1: darker shadows and brighter highlights), clipped to 8 bits.
+    """
+
+    gains: tuple[float, float, float]
+    exposure: float
+    contrast: float = 1.0
 
 
 def random_sunlight(rng: np.random.Generator, *, strength: float | None = None) -> Sunlight:
@@ -128,7 +159,12 @@ def _sun_cosine(normals: np.ndarray, sign: np.ndarray, sunlight: Sunlight) -> np
 
 
 def depth_image(
-    hits: RayHits, sunlight: Sunlight, rng: np.random.Generator, *, depth_scale: float = 1000.0
+    hits: RayHits,
+    sunlight: Sunlight,
+    rng: np.random.Generator,
+    *,
+    depth_scale: float = 1000.0,
+    sunlit: np.ndarray | None = None,
 ) -> np.ndarray:
     """The depth image (uint16, ``depth_scale`` units per metre, 0 = no reading) a Kinect v2 reads.
 
@@ -140,6 +176,9 @@ def depth_image(
         Raises noise and dropout.
     rng
         Source of every random draw.
+    sunlit
+        Shaped as ``hits.surface``: False where the hit point lies in a cast shadow (no sun on it); no
+        cast shadows when omitted.
     """
     hit = hits.hit
     depth = np.where(hit, hits.depth_m, 0.0).astype(np.float32)
@@ -153,13 +192,12 @@ def depth_image(
     safe_total = np.where(any_hit, total, 1.0)
     mixed_m = (amplitude * depth).sum(axis=-1) / safe_total
     incidence = np.arccos(np.clip((amplitude * cosine).sum(axis=-1) / safe_total, 0.0, 1.0))
-    sunlit = sunlight.strength * np.clip(
-        (amplitude * np.clip(_sun_cosine(hits.normals, sign, sunlight), 0.0, None)).sum(axis=-1) / safe_total,
-        0.0,
-        1.0,
-    )
+    sun_on_ray = np.clip(_sun_cosine(hits.normals, sign, sunlight), 0.0, None)
+    if sunlit is not None:
+        sun_on_ray = np.where(sunlit, sun_on_ray, np.float32(0.0))
+    sun_on_pixel = sunlight.strength * np.clip((amplitude * sun_on_ray).sum(axis=-1) / safe_total, 0.0, 1.0)
 
-    sigma_m = axial_noise_sigma_m(mixed_m, incidence) * (1.0 + sunlight.strength * 0.5 + 1.5 * sunlit)
+    sigma_m = axial_noise_sigma_m(mixed_m, incidence) * (1.0 + sunlight.strength * 0.5 + 1.5 * sun_on_pixel)
     reading_m = mixed_m + sigma_m * rng.standard_normal(mixed_m.shape, dtype=np.float32)
 
     nearest = np.where(hit, depth, np.inf).min(axis=-1)
@@ -168,7 +206,7 @@ def depth_image(
     dropout = (
         _RANDOM_DROPOUT
         + 0.04 * sunlight.strength
-        + 0.1 * sunlit
+        + 0.1 * sun_on_pixel
         + np.clip((np.degrees(incidence) - _GRAZING_DEG[0]) / (_GRAZING_DEG[1] - _GRAZING_DEG[0]), 0.0, 1.0)
         + np.clip((reading_m - _SUPPORTED_RANGE_M) / (_MAX_RANGE_M - _SUPPORTED_RANGE_M), 0.0, 1.0)
         * (0.55 + 0.35 * sunlight.strength)
@@ -191,8 +229,10 @@ def _sky(directions: np.ndarray, sunlight: Sunlight) -> np.ndarray:
     )
 
 
-def _radiance(hits: RayHits, raycaster: SceneRaycaster, sunlight: Sunlight) -> np.ndarray:
-    """Linear RGB reaching the camera along each ray, (..., 3) float32."""
+def _radiance(
+    hits: RayHits, raycaster: SceneRaycaster, sunlight: Sunlight, sunlit: np.ndarray | None
+) -> np.ndarray:
+    """Linear RGB reaching the camera along each ray, (..., 3) float32; no sun where ``sunlit`` is False."""
     hit = hits.hit
     surface = np.where(hit, hits.surface, 0)
     sign = _facing_sign(_normal_dot_ray(hits))
@@ -203,9 +243,14 @@ def _radiance(hits: RayHits, raycaster: SceneRaycaster, sunlight: Sunlight) -> n
         0.0,
     )
     direct = np.maximum(np.maximum(sun_cosine, through_leaf), 0.0)
+    if sunlit is not None:
+        direct = np.where(sunlit, direct, np.float32(0.0))
     sky_light = _SKYLIGHT[0] + (_SKYLIGHT[1] / 2) * (sign * hits.normals[..., 2] + 1.0)
-    irradiance = sky_light + np.float32(_SUN_GAIN * sunlight.strength) * direct
-    radiance = np.take(raycaster.surface_colors, surface, axis=0)
+    irradiance = (
+        np.float32(sunlight.skylight_scale) * sky_light
+        + np.float32(_SUN_GAIN * sunlight.strength * sunlight.direct_scale) * direct
+    )
+    radiance = raycaster.reflectance(surface, hits.normals)
     radiance *= irradiance[..., None]
     sky = np.flatnonzero(~hit)
     radiance.reshape(-1, 3)[sky] = _sky(hits.directions.reshape(-1, 3)[sky], sunlight)
@@ -213,12 +258,28 @@ def _radiance(hits: RayHits, raycaster: SceneRaycaster, sunlight: Sunlight) -> n
 
 
 def color_image(
-    hits: RayHits, raycaster: SceneRaycaster, sunlight: Sunlight, rng: np.random.Generator
+    hits: RayHits,
+    raycaster: SceneRaycaster,
+    sunlight: Sunlight,
+    rng: np.random.Generator,
+    *,
+    sunlit: np.ndarray | None = None,
+    response: CameraResponse | None = None,
 ) -> np.ndarray:
     """An 8-bit RGB image (rows, columns, 3): the mean radiance of each pixel's rays, with pixel noise
-    (brightness only: the colour sensor's chroma noise is small after demosaicing and compression)."""
-    radiance = _radiance(hits, raycaster, sunlight).mean(axis=2)
+    (brightness only: the colour sensor's chroma noise is small after demosaicing and compression).
+
+    ``sunlit`` (shaped as ``hits.surface``) is False where a hit point lies in a cast shadow; ``response``
+    applies white balance, exposure and contrast. Without them: no cast shadows, a neutral camera.
+    """
+    radiance = _radiance(hits, raycaster, sunlight, sunlit).mean(axis=2)
+    if response is not None:
+        radiance *= np.asarray(response.gains, dtype=np.float32) * np.float32(response.exposure)
     radiance += np.float32(_COLOR_NOISE) * rng.standard_normal((*radiance.shape[:2], 1), dtype=np.float32)
+    if response is not None:
+        radiance = np.float32(_MID_GREY) * (
+            np.clip(radiance, 0.0, None) / np.float32(_MID_GREY)
+        ) ** np.float32(response.contrast)
     return np.clip(np.round(radiance * 255.0), 0, 255).astype(np.uint8)
 
 
@@ -230,13 +291,19 @@ def capture_frame(
     rng: np.random.Generator,
     *,
     native_color: bool,
+    shadows: ShadowCaster | None = None,
+    response: CameraResponse | None = None,
 ) -> SensorFrame:
     """Render one view: depth from the depth camera at ``pose``, colour from the colour camera beside it
     (``native_color``) or registered pixel for pixel to the depth image (the mean colour of each depth
-    pixel's rays)."""
+    pixel's rays). ``shadows`` (the same scene) casts shadows; ``response`` is the colour camera's white
+    balance, exposure and contrast (neutral when omitted)."""
     depth_hits = raycaster.cast_camera(pose, rig.depth, subpixel_offsets=DEPTH_SUBPIXEL_OFFSETS)
-    depth_raw = depth_image(depth_hits, sunlight, rng)
-    color_hits = (
-        raycaster.cast_camera(pose.moved_by(rig.depth_to_color), rig.color) if native_color else depth_hits
-    )
-    return SensorFrame(depth_raw=depth_raw, color_rgb=color_image(color_hits, raycaster, sunlight, rng))
+    depth_sunlit = None if shadows is None else shadows.sunlit(depth_hits, sunlight.direction)
+    depth_raw = depth_image(depth_hits, sunlight, rng, sunlit=depth_sunlit)
+    color_hits, color_sunlit = depth_hits, depth_sunlit
+    if native_color:
+        color_hits = raycaster.cast_camera(pose.moved_by(rig.depth_to_color), rig.color)
+        color_sunlit = None if shadows is None else shadows.sunlit(color_hits, sunlight.direction)
+    color_rgb = color_image(color_hits, raycaster, sunlight, rng, sunlit=color_sunlit, response=response)
+    return SensorFrame(depth_raw=depth_raw, color_rgb=color_rgb)

@@ -1,12 +1,15 @@
 """Synthetic captures of simulated apple trees, with their exact dimensions: the product's test bench.
 
 One seed decides everything (tree, orchard, sensor calibration, sun, balls, cameras, noise), through
-independent random streams, so the same seed writes the same bytes.
+independent random streams, so the same seed writes the same bytes. A scenario family (:mod:`.scenario`)
+dresses the scene; the default, ``green``, is the plain scene, written exactly as before the families
+existed.
 """
 
 from __future__ import annotations
 
 from datetime import UTC, datetime, timedelta
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -14,9 +17,19 @@ import numpy as np
 from canopy_core.capture import CameraModel
 from canopy_core.simulate.camera import random_kinect_rig
 from canopy_core.simulate.placement import place_balls_and_cameras
-from canopy_core.simulate.raycast import SceneRaycaster
+from canopy_core.simulate.raycast import SceneRaycaster, ShadowCaster
+from canopy_core.simulate.scenario import (
+    Scenario,
+    ScenarioStreams,
+    camera_responses,
+    dress_orchard,
+    fallen_fruit_beside,
+    parse_scenario,
+    plan_scenario,
+    scenario_sunlight,
+)
 from canopy_core.simulate.scene import build_orchard
-from canopy_core.simulate.sensor import capture_frame, random_sunlight
+from canopy_core.simulate.sensor import capture_frame
 from canopy_core.simulate.tree import tree_dimensions
 from canopy_core.simulate.writer import CaptureLabels, GroundTruth, SimulatedView, check_empty, write_capture
 
@@ -34,24 +47,41 @@ def _captured_at(rng: np.random.Generator) -> str:
 
 
 def _simulate(
-    out_dir: Path, *, seed: int, tree: str, n_views: int, native_color: bool, sun: float | None
+    out_dir: Path,
+    *,
+    seed: int,
+    tree: str,
+    n_views: int,
+    native_color: bool,
+    sun: float | None,
+    scenario: Scenario,
 ) -> Path:
-    if n_views < 1:
-        raise ValueError(f"n_views must be at least 1, got {n_views}")
-    if sun is not None and not 0.0 <= sun <= 1.0:
-        raise ValueError(f"sun must be in [0, 1], got {sun}")
     check_empty(out_dir)
+    # The first six streams are the plain scene's, as they always were; the seventh is the scenario's.
+    streams = np.random.SeedSequence(seed).spawn(7)
     orchard_rng, rig_rng, sun_rng, layout_rng, sensor_rng, label_rng = (
-        np.random.default_rng(stream) for stream in np.random.SeedSequence(seed).spawn(6)
+        np.random.default_rng(stream) for stream in streams[:6]
     )
-    orchard = build_orchard(orchard_rng)
+    scenario_streams = ScenarioStreams.spawn(streams[6])
+    plan = plan_scenario(scenario, scenario_streams.plan)
+    dressing = dress_orchard(build_orchard(orchard_rng, posts=not plan.wires), plan, scenario_streams)
+    orchard = dressing.orchard
     rig = random_kinect_rig(rig_rng)
-    sunlight = random_sunlight(sun_rng, strength=sun)
-    raycaster = SceneRaycaster.build(orchard.mesh)
+    sunlight = scenario_sunlight(plan, sun_rng, scenario_streams.light, sun)
+    raycaster = SceneRaycaster.build(orchard.mesh, dressing.hanging_apples)
     layout = place_balls_and_cameras(
-        layout_rng, orchard, raycaster, rig, n_views=n_views, native_color=native_color
+        layout_rng,
+        orchard,
+        raycaster,
+        rig,
+        n_views=n_views,
+        native_color=native_color,
+        beside_balls=partial(fallen_fruit_beside, dressing, scenario_streams) if plan.fruit else None,
     )
-    scene = raycaster.with_spheres(layout.balls)
+    spheres = (*layout.balls, *dressing.hanging_apples, *layout.beside_balls)
+    scene = raycaster.with_spheres(spheres)
+    shadows = ShadowCaster.build(orchard.mesh, spheres) if plan.shadows else None
+    responses = camera_responses(plan, scenario_streams.camera, n_views)
     camera = (
         CameraModel(
             depth=rig.depth, depth_scale=_DEPTH_SCALE, color=rig.color, depth_to_color=rig.depth_to_color
@@ -62,13 +92,23 @@ def _simulate(
     views = [
         SimulatedView(
             name=f"views/{number}",
-            frame=capture_frame(scene, pose, rig, sunlight, sensor_rng, native_color=native_color),
+            frame=capture_frame(
+                scene,
+                pose,
+                rig,
+                sunlight,
+                sensor_rng,
+                native_color=native_color,
+                shadows=shadows,
+                response=response,
+            ),
             camera=camera,
             camera_to_world=pose.camera_to_world,
             ball_pixels=ball_pixels,
+            response=response,
         )
-        for number, (pose, ball_pixels) in enumerate(
-            zip(layout.poses, layout.ball_pixels, strict=True), start=1
+        for number, (pose, ball_pixels, response) in enumerate(
+            zip(layout.poses, layout.ball_pixels, responses, strict=True), start=1
         )
     ]
     return write_capture(
@@ -79,16 +119,33 @@ def _simulate(
         views=views,
         ground_truth=GroundTruth(
             seed=seed,
-            dimensions=tree_dimensions(orchard.main_tree),
+            dimensions=tree_dimensions(orchard.main_tree, fruit=dressing.hanging_apples),
             orchard=orchard,
             balls=layout.balls,
             sunlight=sunlight,
+            dressing=dressing,
+            fallen_apples=layout.beside_balls,
         ),
     )
 
 
+def _checked(n_views: int, sun: float | None, scenario: Scenario | str) -> Scenario:
+    """The scenario named ``scenario``, after checking the options (ValueError if one is wrong)."""
+    if n_views < 1:
+        raise ValueError(f"n_views must be at least 1, got {n_views}")
+    if sun is not None and not 0.0 <= sun <= 1.0:
+        raise ValueError(f"sun must be in [0, 1], got {sun}")
+    return parse_scenario(scenario)
+
+
 def simulate_capture(
-    out_dir: Path, *, seed: int, n_views: int = 2, native_color: bool = True, sun: float | None = None
+    out_dir: Path,
+    *,
+    seed: int,
+    n_views: int = 2,
+    native_color: bool = True,
+    sun: float | None = None,
+    scenario: Scenario | str = Scenario.GREEN,
 ) -> Path:
     """Write one synthetic Kinect v2 capture of a simulated apple tree, with its ``ground_truth.json``.
 
@@ -105,7 +162,11 @@ def simulate_capture(
         ``color_intrinsics`` and ``depth_to_color`` in camera.json. False: 512x424 PNG colour registered
         pixel for pixel to the depth image.
     sun
-        Direct sunlight strength in [0, 1] (brighter colour, more depth noise and dropout); random if None.
+        Direct sunlight strength in [0, 1] (brighter colour, more depth noise and dropout); random if None
+        (0.8-1 in harsh light).
+    scenario
+        The scenario family (:class:`~canopy_core.simulate.scenario.Scenario` or its name): ``green``
+        (the plain scene), ``dry``, ``fruit``, ``wires``, ``weeds``, ``harsh`` or ``mixed``.
 
     Returns
     -------
@@ -115,16 +176,25 @@ def simulate_capture(
     Raises
     ------
     ValueError
-        If ``n_views`` < 1 or ``sun`` is outside [0, 1].
+        If ``n_views`` < 1, ``sun`` is outside [0, 1] or ``scenario`` names no family.
     FileExistsError
         If ``out_dir`` already holds files.
     """
+    family = _checked(n_views, sun, scenario)
     return _simulate(
-        Path(out_dir), seed=seed, tree="T000", n_views=n_views, native_color=native_color, sun=sun
+        Path(out_dir),
+        seed=seed,
+        tree="T000",
+        n_views=n_views,
+        native_color=native_color,
+        sun=sun,
+        scenario=family,
     )
 
 
-def simulate_captures(out: Path, *, seed: int, count: int, n_views: int = 2) -> list[Path]:
+def simulate_captures(
+    out: Path, *, seed: int, count: int, n_views: int = 2, scenario: Scenario | str = Scenario.GREEN
+) -> list[Path]:
     """Write ``count`` synthetic captures ``out/tree_000``, ``out/tree_001``, ... of different trees.
 
     Each capture gets its own seed derived from ``seed`` (so tree shape and size, orchard, camera distances
@@ -141,14 +211,23 @@ def simulate_captures(out: Path, *, seed: int, count: int, n_views: int = 2) -> 
         Number of captures.
     n_views
         Views per capture.
+    scenario
+        The scenario family of every capture (see :func:`simulate_capture`); in ``mixed`` each capture
+        draws its own elements.
 
     Returns
     -------
     list of Path
         The capture folders, in order.
+
+    Raises
+    ------
+    ValueError
+        If ``count`` < 0, ``n_views`` < 1 or ``scenario`` names no family.
     """
     if count < 0:
         raise ValueError(f"count must not be negative, got {count}")
+    family = _checked(n_views, None, scenario)
     seeds = [int(child.generate_state(1)[0]) for child in np.random.SeedSequence(seed).spawn(count)]
     return [
         _simulate(
@@ -158,6 +237,7 @@ def simulate_captures(out: Path, *, seed: int, count: int, n_views: int = 2) -> 
             n_views=n_views,
             native_color=True,
             sun=None,
+            scenario=family,
         )
         for index, tree_seed in enumerate(seeds)
     ]

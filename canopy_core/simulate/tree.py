@@ -2,12 +2,14 @@
 
 A tree grows from a :class:`TreeShape`: a crown envelope of one of three forms (spindle, ellipsoid, open
 vase) stretched along and across the row, with a lobed outline, a slight lean, and leaves in clusters so
-that the crown is partly see-through. :func:`tree_dimensions` gives the ground truth from the mesh itself,
-with the definitions the measurement uses (H, W, D of Yang, Wang & Sun 2019, eqs. 5, 6 and 7-8).
+that the crown is partly see-through. :func:`tree_dimensions` gives the ground truth from the mesh itself
+(and the apples hanging in it, if any), with the definitions the measurement uses (H, W, D of Yang, Wang &
+Sun 2019, eqs. 5, 6 and 7-8).
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from enum import StrEnum
 from functools import cached_property
@@ -17,6 +19,7 @@ from scipy.spatial import ConvexHull
 from scipy.spatial.distance import pdist
 
 from canopy_core.simulate.mesh import Mesh, SurfaceKind, hsv_to_rgb, merge_meshes, tube
+from canopy_core.simulate.raycast import Sphere
 
 __all__ = [
     "CrownForm",
@@ -120,7 +123,8 @@ class TreeDimensions:
     ``height_m`` is the highest point above the ground (eq. 5), ``width_m`` the largest distance between two
     points of the tree projected on the horizontal plane (eq. 6), ``thickness_m`` the top minus the lowest
     leaf point (D, eqs. 7-8 with the true crown base), and ``crown_base_m`` the lowest leaf point above the
-    ground.
+    ground. Apples hanging in the crown are part of the tree (the simulation never hangs one below the
+    lowest leaf, so the crown base stays the lowest leaf).
     """
 
     height_m: float
@@ -372,20 +376,32 @@ def build_tree(shape: TreeShape, rng: np.random.Generator, *, base: np.ndarray) 
     return Tree(shape=shape, base=offset, wood=wood.translated(offset), leaves=leaves.translated(offset))
 
 
-def tree_dimensions(tree: Tree, *, ground_z: float = 0.0) -> TreeDimensions:
-    """The exact H, W, D and crown base of a tree's mesh (see :class:`TreeDimensions`).
+def tree_dimensions(tree: Tree, *, ground_z: float = 0.0, fruit: Sequence[Sphere] = ()) -> TreeDimensions:
+    """The exact H, W, D and crown base of a tree's mesh and the apples hanging in it (see
+    :class:`TreeDimensions`; the fruit counts as crown, as leaves do).
 
-    The width is the diameter of the convex hull of all vertices projected on the xy plane: the largest
-    distance between two points of a set is reached between two of its hull's vertices.
+    The width is the largest distance between two points of the vertices and the apples projected on the
+    xy plane: between two vertices it is reached on the vertices' convex hull, and the farthest points of
+    two discs of centres distance d apart and radii r, s are d + r + s apart.
     """
     vertices = tree.mesh.vertices
-    top_z = float(vertices[:, 2].max())
-    lowest_leaf_z = float(tree.leaves.vertices[:, 2].min())
+    centres = np.array([apple.centre for apple in fruit]).reshape(-1, 3)
+    radii = np.array([apple.radius_m for apple in fruit])
+    top_z = max(float(vertices[:, 2].max()), float((centres[:, 2] + radii).max(initial=-np.inf)))
+    lowest_crown_z = min(
+        float(tree.leaves.vertices[:, 2].min()), float((centres[:, 2] - radii).min(initial=np.inf))
+    )
     plan = vertices[:, :2]
     hull_points = plan[ConvexHull(plan).vertices]
+    width_m = float(pdist(hull_points).max())
+    if len(fruit):
+        points = np.concatenate([hull_points, centres[:, :2]])
+        reach = np.concatenate([np.zeros(len(hull_points)), radii])
+        apart = np.linalg.norm(points[:, None, :] - points[None, len(hull_points) :, :], axis=-1)
+        width_m = max(width_m, float((apart + reach[:, None] + radii[None, :]).max()))
     return TreeDimensions(
         height_m=top_z - ground_z,
-        width_m=float(pdist(hull_points).max()),
-        thickness_m=top_z - lowest_leaf_z,
-        crown_base_m=lowest_leaf_z - ground_z,
+        width_m=width_m,
+        thickness_m=top_z - lowest_crown_z,
+        crown_base_m=lowest_crown_z - ground_z,
     )

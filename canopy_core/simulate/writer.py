@@ -3,6 +3,11 @@
 Depth is written as a 16-bit PNG (millimetres), colour as JPEG (quality 92) for native 1920x1080 pairs and
 as PNG when it is registered to the depth image. Nothing depends on the clock or the machine, so equal
 captures are equal byte for byte.
+
+A capture of a scenario family other than ``green`` also records in ``ground_truth.json`` the family, which
+elements it holds and what was placed (floor palette, fallen leaves, apples, wires, weeds, lighting) and
+each view's colour camera response; a ``green`` capture's file has none of these keys (it is the file the
+simulator always wrote), so a missing ``scenario`` key means ``green``.
 """
 
 from __future__ import annotations
@@ -19,8 +24,9 @@ from PIL import Image
 
 from canopy_core.capture import CAPTURE_FORMAT, CameraModel
 from canopy_core.simulate.raycast import Sphere
+from canopy_core.simulate.scenario import Dressing, Scenario
 from canopy_core.simulate.scene import BALL_COLORS, BALL_DIAMETER_M, Orchard
-from canopy_core.simulate.sensor import SensorFrame, Sunlight
+from canopy_core.simulate.sensor import CameraResponse, SensorFrame, Sunlight
 from canopy_core.simulate.tree import TreeDimensions
 
 __all__ = ["SENSOR_NAME", "CaptureLabels", "GroundTruth", "SimulatedView", "check_empty", "write_capture"]
@@ -41,24 +47,29 @@ class CaptureLabels:
 
 @dataclass(frozen=True, eq=False)
 class SimulatedView:
-    """One rendered view: its name (``views/1``), images, calibration and depth-camera-to-world pose."""
+    """One rendered view: its name (``views/1``), images, calibration, depth-camera-to-world pose and colour
+    camera response (None: neutral)."""
 
     name: str
     frame: SensorFrame
     camera: CameraModel
     camera_to_world: np.ndarray
     ball_pixels: tuple[int, ...]
+    response: CameraResponse | None = None
 
 
 @dataclass(frozen=True, eq=False)
 class GroundTruth:
-    """What the simulation knows exactly, for ``ground_truth.json``."""
+    """What the simulation knows exactly, for ``ground_truth.json``: ``dressing`` is the scenario's (None
+    or a ``green`` one: nothing added), ``fallen_apples`` the apples laid on the ground."""
 
     seed: int
     dimensions: TreeDimensions
     orchard: Orchard
     balls: tuple[Sphere, ...]
     sunlight: Sunlight
+    dressing: Dressing | None = None
+    fallen_apples: tuple[Sphere, ...] = ()
 
 
 def _write_json(path: Path, content: dict[str, Any]) -> None:
@@ -86,10 +97,50 @@ def _manifest_json(labels: CaptureLabels, views: Sequence[SimulatedView]) -> dic
     }
 
 
+def _rgb(color: np.ndarray) -> list[float]:
+    return [round(float(c), 4) for c in color]
+
+
+def _apple_json(apple: Sphere, where: str) -> dict[str, Any]:
+    content: dict[str, Any] = {
+        "center_m": apple.centre.tolist(),
+        "diameter_m": 2 * apple.radius_m,
+        "variety": apple.label,
+        "rgb": _rgb(apple.color),
+        "where": where,
+    }
+    if apple.second_color is not None and apple.second_side is not None:
+        content["blush_rgb"] = _rgb(apple.second_color)
+        content["blush_side"] = apple.second_side.tolist()
+    return content
+
+
+def _scenario_json(truth: GroundTruth, dressing: Dressing) -> dict[str, Any]:
+    """The scenario's keys of ``ground_truth.json``."""
+    palette, trellis, weeds = dressing.palette, dressing.trellis, dressing.weeds
+    return {
+        "scenario": dressing.plan.scenario.value,
+        "elements": {
+            key: value for key, value in dataclasses.asdict(dressing.plan).items() if key != "scenario"
+        },
+        "ground_palette": None if palette is None else dataclasses.asdict(palette),
+        "fallen_leaves": dressing.fallen_leaves,
+        "apples": [_apple_json(apple, "crown") for apple in dressing.hanging_apples]
+        + [_apple_json(apple, "ground") for apple in truth.fallen_apples],
+        "apple_variety": dressing.apple_variety,
+        "wires": [] if trellis is None else [dataclasses.asdict(wire) for wire in trellis.wires],
+        "weeds": {
+            "clumps": [] if weeds is None else [dataclasses.asdict(clump) for clump in weeds.clumps],
+            "suckers": [] if weeds is None else [dataclasses.asdict(sucker) for sucker in weeds.suckers],
+        },
+        "shadows": dressing.plan.shadows,
+    }
+
+
 def _ground_truth_json(truth: GroundTruth, views: Sequence[SimulatedView]) -> dict[str, Any]:
     orchard = truth.orchard
     main = orchard.main_tree
-    return {
+    content: dict[str, Any] = {
         **dataclasses.asdict(truth.dimensions),
         "world_frame": "metres; z up, x along the row, y across it; origin on the ground at the trunk's base",
         "views": {
@@ -121,6 +172,20 @@ def _ground_truth_json(truth: GroundTruth, views: Sequence[SimulatedView]) -> di
         "scene_triangles": orchard.mesh.triangle_count,
         "seed": truth.seed,
     }
+    dressing = truth.dressing
+    if dressing is None or dressing.plan.scenario is Scenario.GREEN:
+        return content
+    content["sun"].update(
+        skylight_scale=truth.sunlight.skylight_scale, direct_scale=truth.sunlight.direct_scale
+    )
+    for view in views:
+        if view.response is not None:
+            content["views"][view.name]["camera_response"] = {
+                "white_balance_gains": list(view.response.gains),
+                "exposure": view.response.exposure,
+                "contrast": view.response.contrast,
+            }
+    return {**content, **_scenario_json(truth, dressing)}
 
 
 def check_empty(out_dir: Path) -> None:

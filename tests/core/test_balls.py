@@ -13,10 +13,11 @@ import numpy as np
 import pytest
 
 from canopy_core.backproject import ViewCloud, backproject
-from canopy_core.balls import SphereFit, color_mask, detect_ball, detect_balls, fit_sphere
+from canopy_core.balls import color_mask, detect_ball, detect_balls
 from canopy_core.capture import load_capture
 from canopy_core.config import BallConfig
 from canopy_core.errors import BallNotFound
+from canopy_core.spheres import SphereFit, fit_sphere
 
 REAL_BALL_DATA = Path(__file__).resolve().parents[3] / "shared" / "data" / "real-kinect2-ball"
 REAL_FRAMES = [f"k{camera}_f{frame:03d}" for camera in (1, 2) for frame in range(10)]
@@ -352,15 +353,24 @@ def test_too_few_points_raises_ball_not_found_with_counts_found_and_needed() -> 
 
     error = _ball_not_found(_render_view([ball]), "yellow", BallConfig(min_points=100))
 
-    assert re.search(r"too few yellow points: \d+ found, .* at least 100 needed", error.message)
+    assert re.search(r"too few yellow points: \d+ found, at least 100 needed", error.message)
 
 
-def test_ball_of_wrong_size_raises_ball_not_found_with_fitted_and_expected_radius() -> None:
+def test_ball_far_from_the_configured_size_is_not_taken_and_the_hint_names_the_diameter() -> None:
     beach_ball = Sphere((0.0, 0.0, 2.5), 0.08, YELLOW)
 
     error = _ball_not_found(_render_view([beach_ball]), "yellow", BallConfig())
 
-    assert re.search(r"fitted radius [78]\d mm, expected 50 mm", error.message)
+    assert re.search(r"no sphere of about 50 mm radius among the \d+ yellow points", error.message)
+    assert error.hint is not None and "calibration_balls.diameter_m" in error.hint
+
+
+def test_ball_a_fifth_too_large_is_refused_for_its_fitted_radius() -> None:
+    ball = Sphere((0.0, 0.0, 2.5), 0.063, YELLOW)
+
+    error = _ball_not_found(_render_view([ball]), "yellow", BallConfig(max_radius_error=0.15))
+
+    assert re.search(r"fitted radius 6\d mm, expected 50 mm \(more than 15% off\)", error.message)
 
 
 def test_small_apple_alone_is_refused_for_its_radius() -> None:
@@ -371,16 +381,15 @@ def test_small_apple_alone_is_refused_for_its_radius() -> None:
     assert re.search(r"fitted radius 3\d mm, expected 50 mm \(more than 25% off\)", error.message)
 
 
-def test_mostly_hidden_ball_raises_ball_not_found_with_points_found_and_expected() -> None:
+def test_mostly_hidden_ball_is_not_taken_and_the_error_says_what_was_seen() -> None:
     ball = Sphere((0.0, 0.0, 2.0), 0.05, YELLOW)
-    leaves = Panel((-0.3, 0.3), (-0.022, 0.5), 1.6, FOLIAGE)  # leaves the top fifth of the ball in view
+    leaves = Panel((-0.3, 0.3), (-0.012, 0.5), 1.6, FOLIAGE)  # leaves the top quarter of the ball in view
 
     error = _ball_not_found(_render_view([ball], [leaves]), "yellow", BallConfig())
 
     assert re.search(
-        r"too few yellow points on a sphere: \d+ found, where a ball 2.0 m away would show about",
-        error.message,
-    )
+        r"too few points on a sphere: \d+ found, where a ball 2.0 m away would show about \d+", error.message
+    ) or re.search(r"no sphere of about 50 mm radius among the \d+ yellow points", error.message)
 
 
 def test_noisy_ball_raises_ball_not_found_for_its_residual() -> None:
@@ -392,16 +401,18 @@ def test_noisy_ball_raises_ball_not_found_for_its_residual() -> None:
 
 
 @pytest.mark.parametrize("distance_m", [2.0, 5.5])
-def test_flat_patch_of_the_ball_colour_is_refused_for_its_radius(distance_m: float) -> None:
+def test_flat_patch_of_the_ball_colour_is_not_a_ball(distance_m: float) -> None:
     patch = Panel((-0.06, 0.06), (-0.06, 0.06), distance_m, BLUE)
 
     error = _ball_not_found(_render_view([], [patch]), "blue", BallConfig())
 
-    assert "fitted radius 100 mm, expected 50 mm" in error.message
+    assert re.search(r"no sphere of about 50 mm radius among the \d+ blue points", error.message) or (
+        "fitted radius 100 mm, expected 50 mm" in error.message
+    )
 
 
 @pytest.mark.parametrize("seed", [0, 2, 4])
-def test_cluster_of_yellow_leaves_is_refused_for_what_it_leaves_visible_behind(seed: int) -> None:
+def test_cluster_of_yellow_leaves_is_not_a_ball(seed: int) -> None:
     rng = np.random.default_rng(seed)
     middle = np.array([rng.uniform(-0.5, 0.5), rng.uniform(-0.3, 0.3), rng.uniform(2.0, 4.0)])
     leaves = [
@@ -410,15 +421,17 @@ def test_cluster_of_yellow_leaves_is_refused_for_what_it_leaves_visible_behind(s
 
     error = _ball_not_found(_render_view(leaves, seed=seed), "yellow", BallConfig())
 
-    assert "of the points seen through the fitted sphere's outline lie on it" in error.message
+    assert re.search(r"no sphere of about 50 mm radius among the \d+ yellow points", error.message) or (
+        "of the points seen through the fitted sphere's outline lie on it" in error.message
+    )
 
 
-def test_only_large_areas_of_the_ball_colour_raise_ball_not_found_with_their_size() -> None:
+def test_a_large_area_of_the_ball_colour_alone_is_not_a_ball() -> None:
     jacket = Panel((-0.3, 0.3), (-0.4, 0.4), 2.5, BLUE)
 
     error = _ball_not_found(_render_view([], [jacket]), "blue", BallConfig())
 
-    assert "no group of blue points has the size of a ball (50 to 300 mm across)" in error.message
+    assert re.search(r"no sphere of about 50 mm radius among the \d{4,} blue points", error.message)
 
 
 # --- real Kinect v2 frames ----------------------------------------------------------------------------------
@@ -435,3 +448,55 @@ def test_real_kinect_ball_centre_within_10_mm_of_reference(frame: str) -> None:
     fit = detect_balls(backproject(capture.views[0]), config)["yellow"]
 
     assert np.linalg.norm(fit.center_m - reference["center_m"]) < 0.010
+
+
+# --- clutter that fooled the colour-first detector ----------------------------------------------------------
+
+STRAW = (153, 134, 76)
+"""Dry straw: the yellow ball's hue and nearly its saturation (HSV 45 deg, 0.5, 0.6)."""
+
+
+def test_yellow_ball_lying_on_straw_of_its_colour_is_found() -> None:
+    ball = Sphere((0.1, 0.4, 3.0), 0.05, YELLOW)
+    straw = Panel((-0.4, 0.5), (0.3, 0.6), 3.03, STRAW)  # joined to the ball in the image, just behind it
+
+    fit = detect_ball(_render_view([ball], [straw], seed=3), "yellow", BallConfig())
+
+    assert _error_m(fit, ball) < 0.004
+
+
+def test_ball_in_deep_shade_on_one_side_is_found_with_its_shaded_points() -> None:
+    ball = Sphere((0.0, 0.3, 3.2), 0.05, YELLOW)
+    cloud = _render_view([ball], seed=4)
+    on_ball = np.linalg.norm(cloud.points_m - ball.center_m, axis=1) < 0.06
+    shaded = on_ball & (cloud.points_m[:, 0] > ball.center_m[0] - 0.02)  # most of it, away from the sun
+    colors = cloud.colors_rgb.copy()
+    colors[shaded] = (colors[shaded] * 0.2).astype(np.uint8)  # value 46: below the yellow range's 70
+    shade = ViewCloud(cloud.view, cloud.points_m, colors, cloud.has_color, cloud.pixels)
+
+    fit = detect_ball(shade, "yellow", BallConfig())
+
+    assert _error_m(fit, ball) < 0.004
+    assert fit.points > 0.8 * np.count_nonzero(on_ball)
+
+
+def test_balls_are_found_under_a_strong_white_balance_drift() -> None:
+    cloud = _render_view([*BALLS, *LOOK_ALIKES], [JACKET, TRUNK], seed=5)
+    gains = np.array([1.25, 1.0, 0.8])  # a warm cast, as automatic white balance under low sun gives
+    warm = np.clip(cloud.colors_rgb * gains, 0, 255).astype(np.uint8)
+    drifted = ViewCloud(cloud.view, cloud.points_m, warm, cloud.has_color, cloud.pixels)
+
+    fits = detect_balls(drifted, BallConfig())
+
+    for color, ball in zip(fits, BALLS, strict=True):
+        assert _error_m(fits[color], ball) < 0.003, color
+
+
+def test_a_post_as_thick_as_the_ball_and_of_its_colour_is_not_taken_for_it() -> None:
+    ball = Sphere((0.3, 0.5, 3.0), 0.05, YELLOW)
+    # A post seen as a column of small spheres of the ball's radius, 4 cm apart: a cylinder's surface.
+    post = [Sphere((-0.5, y, 3.3), 0.05, STRAW) for y in np.arange(-1.0, 0.6, 0.04)]
+
+    fit = detect_ball(_render_view([ball, *post], seed=6), "yellow", BallConfig())
+
+    assert _error_m(fit, ball) < 0.003

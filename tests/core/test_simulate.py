@@ -1,29 +1,42 @@
-"""The capture simulator: valid capture folders, exact ground truth, a depth sensor behaving as Kinect v2."""
+"""The capture simulator: valid capture folders, exact ground truth, a depth sensor behaving as Kinect v2,
+and the scenario families that widen the scenes (dry floors, fruit, wires, weeds, harsh light)."""
 
 from __future__ import annotations
 
+import hashlib
 import json
 from datetime import datetime
 from pathlib import Path
 
+import cv2
 import numpy as np
 import open3d as o3d
 import pytest
 from scipy.spatial import cKDTree
+from typer.testing import CliRunner
 
 from canopy_core.backproject import backproject
 from canopy_core.balls import color_mask
-from canopy_core.capture import Capture, Intrinsics, load_capture
+from canopy_core.capture import Capture, Intrinsics, View, load_capture
+from canopy_core.cli import app
 from canopy_core.config import DEFAULT_HSV_RANGES
 from canopy_core.simulate import simulate_capture, simulate_captures
-from canopy_core.simulate.camera import COLOR_BASELINE_M, camera_pose, project, random_kinect_rig
+from canopy_core.simulate.camera import (
+    COLOR_BASELINE_M,
+    CameraPose,
+    camera_pose,
+    project,
+    random_kinect_rig,
+)
 from canopy_core.simulate.ground import random_ground
 from canopy_core.simulate.mesh import Mesh, SurfaceKind, merge_meshes
 from canopy_core.simulate.placement import place_balls_and_cameras, view_azimuths
-from canopy_core.simulate.raycast import SceneRaycaster, Sphere
+from canopy_core.simulate.raycast import SceneRaycaster, ShadowCaster, Sphere
+from canopy_core.simulate.scenario import Scenario, plan_scenario
 from canopy_core.simulate.scene import BALL_COLORS, build_orchard
 from canopy_core.simulate.sensor import (
     DEPTH_SUBPIXEL_OFFSETS,
+    CameraResponse,
     Sunlight,
     axial_noise_sigma_m,
     color_image,
@@ -351,3 +364,254 @@ def test_balls_keep_their_colour_range_lit_and_shaded(color: str, strength: floa
     upper_right = on_ball & (np.arange(160)[None, :] > 80) & (np.arange(120)[:, None] < 60)
     lower_left = on_ball & (np.arange(160)[None, :] < 80) & (np.arange(120)[:, None] > 60)
     assert brightness[upper_right].mean() > brightness[lower_left].mean()
+
+
+# --- scenario families --------------------------------------------------------------------------------
+
+GREEN_SEED_5_SHA256 = {
+    "capture.json": "de6d2bc1c0a8563a0b295e04099025f475ab75bd8640119f1a8838c56de1a102",
+    "ground_truth.json": "40e1ab6bdaabfed4d4366e66e883c90a89d716e0f067acaf432eb4dcca57f223",
+    "views/1/camera.json": "0bf4fa06c8f81cbdb877fed8817fa1d3536abb686f3c8e61a0df8010a2ecdb8f",
+    "views/1/color.jpg": "3e3deccbbe60bd45d5ca6128beafb46d720267d834f88b58b96786f5c750ea20",
+    "views/1/depth.png": "166ba0e6afcfa4c4ec7300869e526c56520fb5acae5c31d4192e9a71482bcfa7",
+    "views/2/camera.json": "0bf4fa06c8f81cbdb877fed8817fa1d3536abb686f3c8e61a0df8010a2ecdb8f",
+    "views/2/color.jpg": "56990fa2ff3953780538ea1573f6892401af3a0f7d91ffde525a07854d5df09b",
+    "views/2/depth.png": "a0a5b9ca5ba0688ffdfab71081d6bb4896b376c3ecb7cb72bbba83662a185c8d",
+}
+"""``canopy simulate OUT --seed 5 --count 1`` (tree_000) as the simulator wrote it before the families."""
+FAMILY_SEEDS = {"dry": 5, "fruit": 5, "wires": 5, "weeds": 5, "harsh": 5}
+YELLOW_BALL_HSV = [[20, 110, 70], [34, 255, 255]]
+RED_APPLE_HSV = [[170, 100, 30], [8, 255, 255]]
+
+
+def _digests(folder: Path) -> dict[str, str]:
+    return {
+        p.relative_to(folder).as_posix(): hashlib.sha256(p.read_bytes()).hexdigest()
+        for p in sorted(folder.rglob("*"))
+        if p.is_file()
+    }
+
+
+def _in_hsv_range(rgb: np.ndarray, hsv_range: list[list[int]]) -> np.ndarray:
+    """Which RGB colours (..., 3) lie in an OpenCV HSV range (hue wrapping round through 0 if low > high)."""
+    hsv = cv2.cvtColor(rgb.reshape(-1, 1, 3).astype(np.uint8), cv2.COLOR_RGB2HSV).reshape(-1, 3).astype(int)
+    (h0, s0, v0), (h1, s1, v1) = hsv_range
+    hue = (hsv[:, 0] >= h0) & (hsv[:, 0] <= h1) if h0 <= h1 else (hsv[:, 0] >= h0) | (hsv[:, 0] <= h1)
+    return (hue & (hsv[:, 1] >= s0) & (hsv[:, 1] <= s1) & (hsv[:, 2] >= v0) & (hsv[:, 2] <= v1)).reshape(
+        rgb.shape[:-1]
+    )
+
+
+def _color_pose(view: View, truth: dict) -> CameraPose:
+    """The pose of a native view's colour camera, from ground truth and camera.json."""
+    assert view.camera.depth_to_color is not None
+    color_to_world = np.asarray(truth["views"][view.name]["camera_to_world"]) @ np.linalg.inv(
+        view.camera.depth_to_color
+    )
+    return CameraPose(rotation=color_to_world[:3, :3], position=color_to_world[:3, 3])
+
+
+def _depth_pose(view: View, truth: dict) -> CameraPose:
+    pose = np.asarray(truth["views"][view.name]["camera_to_world"])
+    return CameraPose(rotation=pose[:3, :3], position=pose[:3, 3])
+
+
+def _plain_orchard(seed: int) -> tuple:
+    """The plain orchard a seed builds (every family keeps it; a wires capture has other posts)."""
+    return build_orchard(np.random.default_rng(np.random.SeedSequence(seed).spawn(6)[0]))
+
+
+@pytest.fixture(scope="module")
+def family(tmp_path_factory: pytest.TempPathFactory):
+    """Render a family's capture (native colour, two views) once per module, on first use."""
+    rendered: dict[str, Path] = {}
+
+    def render(name: str) -> Path:
+        if name not in rendered:
+            folder = tmp_path_factory.mktemp(name) / "tree"
+            rendered[name] = simulate_capture(folder, seed=FAMILY_SEEDS[name], scenario=name)
+        return rendered[name]
+
+    return render
+
+
+def test_green_scenario_writes_the_same_bytes_as_before_the_families(tmp_path: Path) -> None:
+    [capture] = simulate_captures(tmp_path, seed=5, count=1, scenario="green")
+    assert _digests(capture) == GREEN_SEED_5_SHA256
+
+
+def test_same_seed_and_scenario_write_identical_files(tmp_path: Path) -> None:
+    one = simulate_capture(tmp_path / "a", seed=9, n_views=1, native_color=False, scenario="mixed")
+    other = simulate_capture(tmp_path / "b", seed=9, n_views=1, native_color=False, scenario=Scenario.MIXED)
+    assert _digests(one) == _digests(other)
+    truth = _truth(one)
+    assert (
+        truth["scenario"] == "mixed" and "white_balance_gains" in truth["views"]["views/1"]["camera_response"]
+    )
+    assert {"height_m", "width_m", "thickness_m", "crown_base_m", "balls", "tree", "sun", "seed"} <= set(
+        truth
+    )
+
+
+def test_cli_refuses_an_unknown_scenario_in_one_line(tmp_path: Path) -> None:
+    result = CliRunner().invoke(app, ["simulate", str(tmp_path / "out"), "--scenario", "snowy"])
+    assert result.exit_code == 2
+    assert result.stderr.splitlines() == [
+        "error: unknown scenario 'snowy'; choose one of green, dry, fruit, wires, weeds, harsh, mixed"
+    ]
+    assert not (tmp_path / "out").exists()
+    with pytest.raises(ValueError, match="unknown scenario"):
+        simulate_capture(tmp_path / "a", seed=1, scenario="snowy")
+
+
+def test_mixed_captures_cover_every_element_and_green_holds_none() -> None:
+    plans = [plan_scenario(Scenario.MIXED, np.random.default_rng(seed)) for seed in range(60)]
+    for element in ("ground_palette", "fallen_leaves", "fruit", "wires", "weeds", "harsh_light", "shadows"):
+        assert 0.15 < np.mean([getattr(plan, element) for plan in plans]) < 0.85, element
+    assert all(plan.camera_drift for plan in plans)
+    green = plan_scenario(Scenario.GREEN, np.random.default_rng(0))
+    assert not any(value for key, value in vars(green).items() if key != "scenario")
+
+
+def test_dry_floor_near_the_balls_takes_the_yellow_ball_colour(family) -> None:
+    capture = family("dry")
+    truth = _truth(capture)
+    assert truth["scenario"] == "dry" and truth["ground_palette"]["patches"]
+    fractions = []
+    for view in load_capture(capture).views:
+        pose = _color_pose(view, truth)
+        rows, columns = np.indices(view.color_rgb.shape[:2])
+        for ball in truth["balls"].values():
+            (pixel,), (depth,) = project(pose, view.camera.color, np.array([ball["center_m"]]))
+            radius_px = view.camera.color.fx * 0.05 / depth
+            distance_px = np.hypot(columns - pixel[0], rows - pixel[1])
+            ring = (distance_px > 1.6 * radius_px) & (distance_px < 5 * radius_px)
+            fractions.append(_in_hsv_range(view.color_rgb[ring], YELLOW_BALL_HSV).mean())
+    assert max(fractions) > 0.3
+
+
+def test_fruit_hangs_in_the_crown_lies_by_the_balls_and_shows(family) -> None:
+    capture = family("fruit")
+    truth = _truth(capture)
+    crown = [apple for apple in truth["apples"] if apple["where"] == "crown"]
+    fallen = [apple for apple in truth["apples"] if apple["where"] == "ground"]
+    assert 30 <= len(crown) <= 150 and 1 <= len(fallen) <= 15
+    assert all(0.06 <= apple["diameter_m"] <= 0.09 for apple in truth["apples"])
+    centres = np.array([apple["center_m"] for apple in crown])
+    radii = np.array([apple["diameter_m"] / 2 for apple in crown])
+    assert truth["height_m"] >= (centres[:, 2] + radii).max() - 1e-9
+    assert (centres[:, 2] - radii).min() > truth["crown_base_m"]
+    plan = np.linalg.norm(centres[:, None, :2] - centres[None, :, :2], axis=-1) + radii[:, None] + radii
+    assert truth["width_m"] >= plan.max() - 1e-9
+    balls = np.array([ball["center_m"] for ball in truth["balls"].values()])
+    beside = [np.linalg.norm(balls[:, :2] - apple["center_m"][:2], axis=1).min() for apple in fallen]
+    assert min(beside) <= 0.4
+    red = np.array([apple["center_m"] for apple in crown if apple["variety"] == "red"])
+    shown = 0
+    for view in load_capture(capture).views:
+        pixels, _ = project(_color_pose(view, truth), view.camera.color, red)
+        column, row = np.round(pixels).astype(int).T
+        inside = (column >= 0) & (column < 1920) & (row >= 0) & (row < 1080)
+        shown += int(_in_hsv_range(view.color_rgb[row[inside], column[inside]], RED_APPLE_HSV).sum())
+    assert shown >= 10
+
+
+def test_camera_drift_is_recorded_per_view(family) -> None:
+    responses = [view["camera_response"] for view in _truth(family("fruit"))["views"].values()]
+    for response in responses:
+        assert all(0.79 <= gain <= 1.26 for gain in response["white_balance_gains"])
+        assert 0.6 <= response["exposure"] <= 1.5
+    assert responses[0]["white_balance_gains"] != responses[1]["white_balance_gains"]
+
+
+def test_white_balance_and_exposure_scale_the_colour_channels() -> None:
+    raycaster = SceneRaycaster.build(NEAR_WALL)
+    hits = raycaster.cast_camera(LOOKING_ALONG_Y, SMALL_CAMERA)
+    neutral = color_image(hits, raycaster, OVERCAST, np.random.default_rng(0)).reshape(-1, 3).mean(axis=0)
+    response = CameraResponse(gains=(1.2, 1.0, 0.8), exposure=0.9)
+    drifted = color_image(hits, raycaster, OVERCAST, np.random.default_rng(0), response=response)
+    np.testing.assert_allclose(drifted.reshape(-1, 3).mean(axis=0) / neutral, [1.08, 0.9, 0.72], rtol=0.02)
+
+
+def test_wires_show_in_depth_as_a_thin_wire_does(family) -> None:
+    from canopy_core.simulate.trellis import Wire, wire_height_m
+
+    capture = family("wires")
+    truth = _truth(capture)
+    assert 2 <= len(truth["wires"]) <= 5
+    on_line, off_line = [], []
+    for view in load_capture(capture).views:
+        pose, depth_m = _depth_pose(view, truth), view.depth_raw / 1000.0
+        for record in truth["wires"]:
+            wire = Wire(**{**record, "supports_x_m": tuple(record["supports_x_m"])})
+            assert 0.0025 <= wire.diameter_m <= 0.005 and wire.height_m >= 0.4 and abs(wire.y_m) <= 0.06
+            x = np.linspace(-4.0, 4.0, 4000)
+            points = np.column_stack([x, np.full_like(x, wire.y_m), wire_height_m(wire, x)])
+            pixels, along_m = project(pose, view.camera.depth, points)
+            for shift, found in ((0, on_line), (6, off_line)):
+                column, row = np.round(pixels).astype(int).T + np.array([[0], [shift]])
+                inside = (column >= 0) & (column < 512) & (row >= 0) & (row < 424)
+                read = depth_m[row[inside], column[inside]]
+                found.extend(np.abs(read - along_m[inside]) < 0.03)
+    assert sum(on_line) >= 30 and np.mean(on_line) > 4 * np.mean(off_line)
+
+
+def test_weeds_grow_at_the_trunk_foot_below_the_crown_and_outside_the_ground_truth(family) -> None:
+    capture = family("weeds")
+    truth = _truth(capture)
+    clumps, suckers = truth["weeds"]["clumps"], truth["weeds"]["suckers"]
+    assert 6 <= len(clumps) <= 25 and 1 <= len(suckers) <= 6
+    highest_m = truth["crown_base_m"] - 0.15
+    for clump in clumps:
+        x, y, z = clump["center_m"]
+        assert np.hypot(x, y) <= 0.6 and 0.0 < clump["height_m"] <= 0.6 + 0.02
+        assert z + clump["height_m"] <= highest_m + 1e-9
+    assert all(sucker["top_z_m"] <= highest_m + 1e-9 for sucker in suckers)
+    balls = np.array([ball["center_m"] for ball in truth["balls"].values()])
+    centres = np.array([clump["center_m"] for clump in clumps])
+    assert np.linalg.norm(centres[:, None, :2] - balls[None, :, :2], axis=-1).min() < 0.3
+    plain = tree_dimensions(_plain_orchard(FAMILY_SEEDS["weeds"]).main_tree)
+    assert (truth["height_m"], truth["width_m"], truth["crown_base_m"]) == (
+        plain.height_m,
+        plain.width_m,
+        plain.crown_base_m,
+    )
+
+
+def test_harsh_light_casts_deep_shadows_and_clips(family) -> None:
+    capture = family("harsh")
+    truth = _truth(capture)
+    assert truth["shadows"] and truth["sun"]["strength"] >= 0.8
+    orchard = _plain_orchard(FAMILY_SEEDS["harsh"])
+    assert orchard.mesh.triangle_count == truth["scene_triangles"]
+    view = load_capture(capture).views[0]
+    hits = SceneRaycaster.build(orchard.mesh).cast_camera(_color_pose(view, truth), view.camera.color)
+    sunlit = ShadowCaster.build(orchard.mesh).sunlit(hits, tuple(truth["sun"]["direction"]))[..., 0]
+    ground = (hits.surface[..., 0] >= 0) & (hits.surface[..., 0] < orchard.ground.mesh.triangle_count)
+    ground &= hits.depth_m[..., 0] < 6.0
+    brightness = view.color_rgb.max(axis=-1).astype(float)
+    shadowed, lit = brightness[ground & ~sunlit], brightness[ground & sunlit]
+    assert shadowed.size > 2000 and lit.size > 2000
+    assert np.median(shadowed) < 0.4 * np.median(lit)
+    assert (view.color_rgb == 255).any(axis=-1).mean() > 0.01
+
+
+def test_two_coloured_apples_blush_on_one_side() -> None:
+    camera = Intrinsics(width=160, height=120, fx=400.0, fy=400.0, cx=80.0, cy=60.0)
+    apple = Sphere(
+        centre=np.array([0.0, 2.0, 1.0]),
+        radius_m=0.04,
+        color=np.array([0.6, 0.7, 0.2], dtype=np.float32),
+        kind=SurfaceKind.FRUIT,
+        second_color=np.array([0.7, 0.1, 0.1], dtype=np.float32),
+        second_side=np.array([1.0, 0.0, 0.0]),
+    )
+    raycaster = SceneRaycaster.build(WALL, [apple])
+    hits = raycaster.cast_camera(LOOKING_ALONG_Y, camera)
+    rgb = color_image(hits, raycaster, OVERCAST, np.random.default_rng(0)).astype(int)
+    on_apple = hits.surface[..., 0] == raycaster.sphere_surface(0)
+    columns = np.arange(160)[None, :]
+    right, left = on_apple & (columns > 90), on_apple & (columns < 70)
+    # World +x is the camera's right (LOOKING_ALONG_Y looks along +y with z up).
+    assert (rgb[right][:, 0] > 2 * rgb[right][:, 1]).all() and (rgb[left][:, 1] > rgb[left][:, 0]).all()
+    assert raycaster.surface_kinds[raycaster.sphere_surface(0)] == SurfaceKind.FRUIT

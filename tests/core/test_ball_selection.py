@@ -1,0 +1,114 @@
+"""Choosing the balls among the spheres found: on the ground, distinct, the same triangle in every view."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from canopy_core.ball_selection import check_ball_distances, check_ball_spacing, choose_in_view, select_balls
+from canopy_core.balls import find_ball_candidates
+from canopy_core.config import BallConfig
+from canopy_core.errors import BallNotFound, RegistrationFailed
+from canopy_core.ground import GroundPlane
+from tests.core.test_balls import BLUE, FOLIAGE, RED, YELLOW, Panel, Sphere, _render_view
+
+COLORS = ["red", "yellow", "blue"]
+BALLS_WORLD = {"red": (-0.4, 0.0, 0.3), "yellow": (0.45, 0.0, 0.2), "blue": (0.0, 0.0, -0.45)}
+"""Ball centres in a frame centred on the trunk (x right, y down, z away from the first camera); they rest on
+the ground, the plane y = 0.05."""
+RGB = {"red": RED, "yellow": YELLOW, "blue": BLUE}
+
+
+def _in_view(point: tuple[float, float, float], view: int) -> tuple[float, float, float]:
+    """A trunk-frame point in the camera frame of view 1 (3 m before the trunk, 1 m above the balls) or
+    view 2 (the opposite side of the row, turned round)."""
+    x, y, z = point
+    if view == 2:
+        x, z = -x, -z
+    return (x, y + 1.0, z + 3.0)
+
+
+def _view(view: int, extra: list[Sphere], panels: list[Panel], seed: int):  # type: ignore[no-untyped-def]
+    balls = [Sphere(_in_view(BALLS_WORLD[c], view), 0.05, RGB[c]) for c in COLORS]
+    cloud = _render_view([*balls, *extra], panels, seed=seed)
+    return cloud, {c: np.asarray(ball.center_m) for c, ball in zip(COLORS, balls, strict=True)}
+
+
+def _hiding_lower_part(centre: tuple[float, float, float], *, from_y_m: float) -> Panel:
+    """Leaves 40 cm before a ball hiding it from ``from_y_m`` (relative to its centre, y down) downwards."""
+    x, y, z = centre
+    depth = z - 0.4
+    return Panel(
+        ((x - 0.08) * depth / z, (x + 0.08) * depth / z),
+        ((y + from_y_m) * depth / z, (y + 0.1) * depth / z),
+        depth,
+        FOLIAGE,
+    )
+
+
+def _ground(view: int) -> GroundPlane:
+    return GroundPlane(
+        point_m=np.asarray(_in_view((0.0, 0.05, 0.0), view)), normal=np.array([0.0, -1.0, 0.0])
+    )
+
+
+def test_an_apple_beside_the_red_ball_is_not_taken_in_one_view_when_the_others_disagree() -> None:
+    apple_world = (-0.15, 0.002, 0.45)  # a large (9.6 cm) fallen apple 30 cm from the red ball, on the ground
+    apple = [Sphere(_in_view(apple_world, 2), 0.048, RED)]
+    # In view 2 a tuft of grass hides the red ball's lower half; the apple there shows more points.
+    tuft = _hiding_lower_part(_in_view(BALLS_WORLD["red"], 2), from_y_m=-0.005)
+    first, truth_1 = _view(1, [], [], seed=1)
+    second, truth_2 = _view(2, apple, [tuft], seed=2)
+    config = BallConfig()
+    views = [find_ball_candidates(first, config), find_ball_candidates(second, config)]
+    alone = choose_in_view(views[1], config)
+    assert np.linalg.norm(alone["red"].fit.center_m - apple[0].center_m) < 0.02  # one view alone errs
+
+    chosen = select_balls(views, config, grounds=[_ground(1), _ground(2)])
+
+    for choice, truth in zip(chosen, (truth_1, truth_2), strict=True):
+        for color in COLORS:
+            assert np.linalg.norm(choice.chosen[color].fit.center_m - truth[color]) < 0.004, color
+    reasons = [reason for _, reason in chosen[1].rejected["red"]]
+    assert "not at the same distances from the other balls as in the other views" in reasons
+
+
+def test_an_apple_hanging_in_the_crown_is_refused_for_not_resting_on_the_ground() -> None:
+    apple = [Sphere(_in_view((0.2, -1.2, 0.1), 1), 0.05, RED)]  # 1.2 m up, a ball's size, fully in view
+    leaves = _hiding_lower_part(_in_view(BALLS_WORLD["red"], 1), from_y_m=0.01)
+    cloud, truth = _view(1, apple, [leaves], seed=3)
+    config = BallConfig()
+    found = find_ball_candidates(cloud, config)
+    assert np.linalg.norm(choose_in_view(found, config)["red"].fit.center_m - apple[0].center_m) < 0.02
+
+    (choice,) = select_balls([found], config, grounds=[_ground(1)])
+
+    assert np.linalg.norm(choice.chosen["red"].fit.center_m - truth["red"]) < 0.004
+    assert any("above the ground" in reason for _, reason in choice.rejected["red"])
+
+
+def test_only_a_floating_sphere_of_a_colour_fails_naming_the_view_colour_and_height() -> None:
+    cloud, _ = _view(1, [Sphere(_in_view((0.2, -1.2, 0.1), 1), 0.05, RED)], [], seed=4)
+    config = BallConfig(colors=["red"])
+    found = find_ball_candidates(cloud, config)
+    floating = GroundPlane(point_m=np.array([0.0, 1.5, 0.0]), normal=np.array([0.0, -1.0, 0.0]))
+    # The real red ball is ~0.45 m above this (wrong) ground too: both spheres float.
+    with pytest.raises(BallNotFound) as caught:
+        select_balls([found], config, grounds=[floating])
+    assert caught.value.view == "views/1" and caught.value.color == "red"
+    assert "above the ground" in caught.value.message
+
+
+def test_a_ball_moved_between_views_fails_registration_naming_it() -> None:
+    reference = np.array([[0.5, 0.1, 3.0], [-0.3, 0.45, 3.2], [-0.25, -0.5, 2.9]])
+    moved = reference.copy()
+    moved[2] += [0.06, 0.0, 0.0]
+    with pytest.raises(RegistrationFailed) as caught:
+        check_ball_distances("views/2", moved, reference, COLORS, tolerance_m=0.02)
+    assert caught.value.view == "views/2" and "blue ball" in caught.value.message
+
+
+def test_one_ball_found_twice_fails_naming_both_colours() -> None:
+    same = np.array([[0.5, 0.1, 3.0], [0.5, 0.1, 3.0], [-0.25, -0.5, 2.9]])
+    with pytest.raises(RegistrationFailed, match="red and yellow balls were found at the same place"):
+        check_ball_spacing("views/1", same, COLORS, 0.1)
