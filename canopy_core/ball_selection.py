@@ -14,39 +14,59 @@ from __future__ import annotations
 
 import itertools
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from canopy_core.balls import BallCandidate, ViewBallCandidates
+from canopy_core.balls import BallCandidate, Objection, ViewBallCandidates
 from canopy_core.config import BallConfig
 from canopy_core.errors import BallNotFound, RegistrationFailed
 from canopy_core.ground import GroundPlane
 
 __all__ = [
     "BallChoice",
+    "Rejection",
     "check_ball_distances",
     "check_ball_spacing",
     "choose_in_view",
+    "describe_view",
     "select_balls",
 ]
 
 _CANDIDATES_PER_COLOR = 4
 """The likeliest plausible spheres per colour and view that the joint choice considers (4³ triangles)."""
+_ANCHORS = 2
+"""The likeliest whole triangles per view that place the balls missing from other views."""
+_PLACEMENT_TOLERANCE_M = 0.05
+"""A sphere found this close to where the other views place a ball is that ball: the placement errs by the
+ground's unevenness under the balls and the plane's error, a few centimetres."""
+
+
+@dataclass(frozen=True)
+class Rejection:
+    """A sphere not taken for a colour's ball, and why."""
+
+    candidate: BallCandidate
+    objection: Objection
 
 
 @dataclass(frozen=True)
 class BallChoice:
     """The balls chosen in one view, and why each other sphere was not taken, per colour.
 
-    ``rejected`` maps each colour to ``(candidate, reason)`` pairs, likeliest first: its geometry's
-    problem, too little of the colour, not resting on the ground, taken for another colour, or not at the
-    other views' distances.
+    ``rejected`` maps each colour to its rejections, likeliest sphere first: its geometry's problem, too
+    little of the colour, not resting on the ground (``floating``), taken for another colour (``taken``),
+    not at the other views' distances (``inconsistent``) or, in one view alone, less likely than the one
+    chosen (``weaker``). A view described on its own (:func:`describe_view`) may lack a colour's ball:
+    ``missing`` says why.
     """
 
     view: str
     chosen: dict[str, BallCandidate]
-    rejected: dict[str, list[tuple[BallCandidate, str]]]
+    rejected: dict[str, list[Rejection]]
+    found_by_position: tuple[str, ...] = ()
+    """Colours whose ball was found where the other views placed it, not by its own colour's votes."""
+    missing: dict[str, Objection] = field(default_factory=dict)
 
 
 def check_ball_spacing(view: str, centres: np.ndarray, colors: Sequence[str], diameter_m: float) -> None:
@@ -102,6 +122,32 @@ def _distance_error(
     )
 
 
+def describe_view(
+    view: ViewBallCandidates, config: BallConfig, *, ground: GroundPlane | None = None
+) -> BallChoice:
+    """One view's balls on its own, as far as they go: the likeliest combination of distinct plausible
+    spheres if there is one, else per colour in turn its likeliest plausible sphere no earlier colour
+    took; every other sphere with its reason, and why each colour without a ball has none. What
+    ``canopy balls`` shows of a view when the views cannot be registered together."""
+    shortlist = _shortlist(view, config, ground=ground)
+    triangles = _assignments(shortlist, config)
+    if triangles:
+        chosen = dict(zip(config.colors, triangles[0][1], strict=True))
+    else:
+        chosen = {}
+        for color in config.colors:
+            free = [c for c in shortlist.plausible[color] if all(c is not o for o in chosen.values())]
+            if free:
+                chosen[color] = free[0]
+    described = _describe(view, shortlist, chosen, config, [], alternative=_weaker())
+    missing = {
+        color: _missing_objection(view, shortlist, color, config)
+        for color in config.colors
+        if color not in chosen
+    }
+    return replace(described, missing=missing)
+
+
 def choose_in_view(candidates: ViewBallCandidates, config: BallConfig) -> dict[str, BallCandidate]:
     """The likeliest plausible sphere per colour in one view alone, never one sphere for two colours.
 
@@ -148,13 +194,16 @@ def select_balls(
     shortlists = [
         _shortlist(view, config, ground=ground) for view, ground in zip(views, grounds, strict=True)
     ]
-    per_view = []
-    for view, shortlist in zip(views, shortlists, strict=True):
-        triangles = _assignments(shortlist, config)
+    per_view = [_assignments(shortlist, config) for shortlist in shortlists]
+    chosen = _consistent_choice(per_view, config) if all(per_view) else None
+    rescued: list[list[BallCandidate]] = [[] for _ in views]
+    if chosen is None and len(views) > 1 and len(config.colors) >= 3:
+        rescued = _search_where_placed(views, shortlists, per_view, grounds, config)
+        per_view = [_assignments(shortlist, config) for shortlist in shortlists]
+        chosen = _consistent_choice(per_view, config) if all(per_view) else None
+    for view, shortlist, triangles in zip(views, shortlists, per_view, strict=True):
         if not triangles:
             raise _first_missing(view, shortlist, config)
-        per_view.append(triangles)
-    chosen = _consistent_choice(per_view, config)
     if chosen is None:  # then some view's likeliest triangle disagrees with the reference's: name the worst
         best = [np.array([c.fit.center_m for c in triangles[0][1]]) for triangles in per_view]
         worst = 1 + int(np.argmax([_disagreement(centres, best[0]).max() for centres in best[1:]]))
@@ -162,9 +211,117 @@ def select_balls(
             views[worst].view, best[worst], best[0], config.colors, tolerance_m=config.max_distance_mismatch_m
         )
     return [
-        _describe(view, shortlist, dict(zip(config.colors, triangle, strict=True)), config)
-        for view, shortlist, triangle in zip(views, shortlists, chosen, strict=True)
+        _describe(
+            view,
+            shortlist,
+            dict(zip(config.colors, triangle, strict=True)),
+            config,
+            found,
+            alternative=Objection(
+                "inconsistent", "not at the same distances from the other balls as in the other views"
+            ),
+        )
+        for view, shortlist, triangle, found in zip(views, shortlists, chosen, rescued, strict=True)
     ]
+
+
+def _search_where_placed(
+    views: Sequence[ViewBallCandidates],
+    shortlists: list[_Shortlist],
+    per_view: list[list[tuple[float, tuple[BallCandidate, ...]]]],
+    grounds: Sequence[GroundPlane | None],
+    config: BallConfig,
+) -> list[list[BallCandidate]]:
+    """Look for each view's balls where the other views place them (:func:`_placements`); a sphere found
+    there (:meth:`ViewBallCandidates.sphere_near`) joins that colour's shortlist however little of its
+    colour it showed. Returns, per view, the spheres added."""
+    added: list[list[BallCandidate]] = [[] for _ in views]
+    anchors = [
+        (a, triangle, grounds[a])
+        for a, triangles in enumerate(per_view)
+        for _, triangle in triangles[:_ANCHORS]
+    ]
+    for target, (view, shortlist, ground) in enumerate(zip(views, shortlists, grounds, strict=True)):
+        if ground is None:
+            continue
+        others = [(triangle, anchor_ground) for a, triangle, anchor_ground in anchors if a != target]
+        for missing, color in enumerate(config.colors):
+            known = shortlist.plausible[color]
+            for estimate in _placements(shortlist, ground, others, missing, config):
+                if any(np.linalg.norm(c.fit.center_m - estimate) < config.radius_m for c in known):
+                    continue
+                found = view.sphere_near(estimate, color, config)
+                if (
+                    found is not None
+                    and np.linalg.norm(found.fit.center_m - estimate) < _PLACEMENT_TOLERANCE_M
+                ):
+                    known.append(found)
+                    added[target].append(found)
+    return added
+
+
+def _placements(
+    shortlist: _Shortlist,
+    ground: GroundPlane,
+    anchors: list[tuple[tuple[BallCandidate, ...], GroundPlane | None]],
+    missing: int,
+    config: BallConfig,
+) -> list[np.ndarray]:
+    """Where the other views place one view's ball of colour index ``missing`` (0, 2 or 4 points each).
+
+    The balls do not move: a triangle found whole in another view (an anchor) gives the distances from that
+    ball to the other two, and how much higher above the ground it stands than they do (a view's ground is
+    a plane; the ground under the balls undulates by centimetres). Two balls found in this view at the
+    anchor's distance from each other, and this view's ground plane, then place it on at most two points.
+    """
+    others = [i for i in range(len(config.colors)) if i != missing][:2]
+    placed = []
+    for triangle, anchor_ground in anchors:
+        centres = np.array([c.fit.center_m for c in triangle])
+        rise = 0.0
+        if anchor_ground is not None:
+            beside = anchor_ground.height_of(centres[others[0]]) + anchor_ground.height_of(centres[others[1]])
+            rise = anchor_ground.height_of(centres[missing]) - beside / 2
+        apart = float(np.linalg.norm(centres[others[0]] - centres[others[1]]))
+        reach = [float(np.linalg.norm(centres[missing] - centres[i])) for i in others]
+        pairs = itertools.product(*(shortlist.plausible[config.colors[i]][:2] for i in others))
+        for first, second in pairs:
+            a, b = first.fit.center_m, second.fit.center_m
+            if abs(float(np.linalg.norm(a - b)) - apart) > config.max_distance_mismatch_m:
+                continue
+            height = rise + (ground.height_of(a) + ground.height_of(b)) / 2
+            placed.extend(_third_ball((a, reach[0]), (b, reach[1]), ground, height))
+    return placed
+
+
+def _third_ball(
+    first: tuple[np.ndarray, float], second: tuple[np.ndarray, float], ground: GroundPlane, height_m: float
+) -> list[np.ndarray]:
+    """The points ``height_m`` above the ground plane at given distances from two ball centres (0 to 2).
+
+    ``first`` and ``second`` are each a centre and the distance the point must lie from it.
+    """
+    normal = ground.normal / np.linalg.norm(ground.normal)
+    origin = ground.point_m + height_m * normal
+    axis_u = np.cross(normal, [1.0, 0.0, 0.0] if abs(normal[0]) < 0.9 else [0.0, 1.0, 0.0])
+    axis_u /= np.linalg.norm(axis_u)
+    axis_v = np.cross(normal, axis_u)
+    planar = []
+    for centre, distance in (first, second):
+        offset = centre - origin
+        planar.append((np.array([offset @ axis_u, offset @ axis_v]), distance**2 - (offset @ normal) ** 2))
+    (a, a_sq), (b, b_sq) = planar
+    span = float(np.linalg.norm(b - a))
+    if a_sq <= 0.0 or b_sq <= 0.0 or span < 1e-6:
+        return []
+    along = (a_sq - b_sq + span**2) / (2.0 * span)
+    across_sq = a_sq - along**2
+    if across_sq < 0.0:
+        return []
+    direction = (b - a) / span
+    perpendicular = np.array([-direction[1], direction[0]])
+    in_plane = [a + along * direction + sign * np.sqrt(across_sq) * perpendicular for sign in (1.0, -1.0)]
+    return [origin + point[0] * axis_u + point[1] * axis_v for point in in_plane]
 
 
 @dataclass(frozen=True)
@@ -173,34 +330,54 @@ class _Shortlist:
     others with why each was refused."""
 
     plausible: dict[str, list[BallCandidate]]
-    refused: dict[str, list[tuple[BallCandidate, str]]]
+    refused: dict[str, list[Rejection]]
 
 
 def _shortlist(view: ViewBallCandidates, config: BallConfig, *, ground: GroundPlane | None) -> _Shortlist:
     plausible: dict[str, list[BallCandidate]] = {}
-    refused: dict[str, list[tuple[BallCandidate, str]]] = {}
+    refused: dict[str, list[Rejection]] = {}
     for color in config.colors:
         plausible[color], refused[color] = [], []
         for candidate in view.ranked(color, config):
-            problem = candidate.problem_as(color, config) or _floating(candidate, ground, config)
-            if problem is None and len(plausible[color]) < _CANDIDATES_PER_COLOR:
+            objection = candidate.objection(color, config) or _floating(candidate, ground, config)
+            if objection is None and len(plausible[color]) < _CANDIDATES_PER_COLOR:
                 plausible[color].append(candidate)
-            elif problem is not None:
-                refused[color].append((candidate, problem))
+            elif objection is not None:
+                refused[color].append(Rejection(candidate, objection))
     return _Shortlist(plausible=plausible, refused=refused)
 
 
-def _floating(candidate: BallCandidate, ground: GroundPlane | None, config: BallConfig) -> str | None:
+def _floating(candidate: BallCandidate, ground: GroundPlane | None, config: BallConfig) -> Objection | None:
     """Why a sphere is not resting on the ground, or None when it is (or no ground is known)."""
     if ground is None:
         return None
     gap_m = ground.height_of(candidate.fit.center_m) - config.radius_m
     if gap_m <= config.max_ground_gap_m:
         return None
-    return (
+    return Objection(
+        "floating",
         f"a sphere {candidate.range_m:.1f} m away stands {gap_m:.2f} m above the ground, where a calibration "
-        "ball rests on it (an apple in the crown?)"
+        "ball rests on it (an apple in the crown?)",
+        "Lay the ball on the ground, in view",
     )
+
+
+def _weaker() -> Objection:
+    return Objection("weaker", "less likely than the sphere chosen")
+
+
+def _missing_objection(
+    view: ViewBallCandidates, shortlist: _Shortlist, color: str, config: BallConfig
+) -> Objection:
+    """Why a view has no plausible sphere for ``color``: the likeliest one floats, or the view's own
+    reason (no point of the colour, too few, no sphere, the likeliest sphere's problem)."""
+    floating = [r.objection for r in shortlist.refused[color] if r.objection.code == "floating"]
+    if floating and not shortlist.plausible[color]:
+        return floating[0]
+    if shortlist.plausible[color]:  # every plausible one was taken for another colour
+        return Objection("taken", "its only plausible spheres were taken for other balls")
+    error = view.not_found(color, config)
+    return Objection("missing", error.message, error.hint)
 
 
 def _first_missing(
@@ -209,18 +386,9 @@ def _first_missing(
     """The error for a view without a plausible combination: the first colour lacking a sphere, or the
     spheres' spacing when every colour has one."""
     for color in config.colors:
-        if shortlist.plausible[color]:
-            continue
-        floating = [
-            reason
-            for candidate, reason in shortlist.refused[color]
-            if not candidate.problem_as(color, config)
-        ]
-        if floating:
-            return BallNotFound(
-                floating[0], view=view.view, color=color, hint="Lay the ball on the ground, in view"
-            )
-        return view.not_found(color, config)
+        if not shortlist.plausible[color]:
+            objection = _missing_objection(view, shortlist, color, config)
+            return BallNotFound(objection.message, view=view.view, color=color, hint=objection.hint)
     centres = np.array([shortlist.plausible[color][0].fit.center_m for color in config.colors])
     try:
         check_ball_spacing(view.view, centres, config.colors, config.diameter_m)
@@ -280,25 +448,28 @@ def _consistent_choice(
 
 
 def _describe(
-    view: ViewBallCandidates, shortlist: _Shortlist, chosen: dict[str, BallCandidate], config: BallConfig
+    view: ViewBallCandidates,
+    shortlist: _Shortlist,
+    chosen: dict[str, BallCandidate],
+    config: BallConfig,
+    rescued: list[BallCandidate],
+    *,
+    alternative: Objection,
 ) -> BallChoice:
-    rejected: dict[str, list[tuple[BallCandidate, str]]] = {}
+    """The choice of ``chosen`` in one view: each colour's other plausible spheres are rejected as taken
+    for another colour, or with ``alternative``; then come the refused ones."""
+    rejected: dict[str, list[Rejection]] = {}
     for color in config.colors:
         others = []
         for candidate in shortlist.plausible[color]:
-            if candidate is chosen[color]:
+            if candidate is chosen.get(color):
                 continue
             taken_as = next((c for c, other in chosen.items() if other is candidate), None)
-            others.append(
-                (
-                    candidate,
-                    f"taken for the {taken_as} ball"
-                    if taken_as
-                    else "not at the same distances from the other balls as in the other views",
-                )
-            )
+            objection = Objection("taken", f"taken for the {taken_as} ball") if taken_as else alternative
+            others.append(Rejection(candidate, objection))
         rejected[color] = others + shortlist.refused[color]
-    return BallChoice(view=view.view, chosen=chosen, rejected=rejected)
+    by_position = tuple(color for color, candidate in chosen.items() if any(candidate is r for r in rescued))
+    return BallChoice(view=view.view, chosen=chosen, rejected=rejected, found_by_position=by_position)
 
 
 def _disagreement(centres: np.ndarray, reference: np.ndarray) -> np.ndarray:

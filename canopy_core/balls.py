@@ -17,7 +17,7 @@ likeliest in one view alone.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
@@ -32,6 +32,7 @@ from canopy_core.spheres import SphereFit, ransac_centre, refine_sphere, sphere_
 
 __all__ = [
     "BallCandidate",
+    "Objection",
     "ViewBallCandidates",
     "color_likelihood",
     "color_mask",
@@ -60,6 +61,11 @@ _MIN_CONCENTRATION = 0.5
 """Least share of the votes within a radius of a peak that lie within ``_VOTE_RADIUS`` radii of it."""
 _MAX_BLOB_DIAMETERS = 3.0
 """A group of a colour's pixels wider than this many ball diameters is not a ball seen alone."""
+_VOTES_PER_BALL = 300.0
+"""Votes are thinned to about this many per ball-sized area before they are counted (a far 10 cm ball gives
+50-100, all kept; a near or large one thousands)."""
+_MAX_PEAK_VOTES = 2000
+"""At most this many of the strongest votes are weighed as peaks (each costs a neighbour query)."""
 _MAX_PEAKS = 8
 """At most this many vote peaks per colour and view are fitted (bounds the time per view)."""
 _NEAR_RADII = 1.6
@@ -71,6 +77,9 @@ the rim's mixed pixels pull the centre: 3.5 mm median error against 1.9.)"""
 _MAYBE_LIKELIHOOD = 0.05
 """Points with this likelihood or more may be the ball's and count towards its points: a ball pixel in deep
 shade keeps 0.1 or more, other colours, sky and bark about 0."""
+_START_SHARE = 0.6
+"""A RANSAC sphere with fewer than this share of the points a ball must show is not refined: refining
+rarely gains more than a third of the inliers."""
 _OUTLINE_RADII = 1.8
 """Coverage is judged on the pixels within this many projected radii of the fitted centre."""
 _RADIUS_SPREAD = 0.05
@@ -80,6 +89,21 @@ at the rim shrink a small far ball by about 6 %; apples are 10-40 % smaller."""
 _TOLERANCE_REFERENCE_RANGE_M = 3.0
 """Up to this range the configured inlier tolerance holds; beyond, it grows as range², like the depth noise
 of a time-of-flight camera, so a far ball in sun is still fitted as a ball."""
+
+
+@dataclass(frozen=True)
+class Objection:
+    """Why a sphere is not taken for a ball.
+
+    ``code`` is one word for tools and pictures: ``points``, ``radius``, ``residual``, ``coverage`` (its
+    geometry is not a ball's), ``colour`` (too little of the ball's colour) here, and ``floating``,
+    ``taken``, ``inconsistent``, ``weaker`` from :mod:`canopy_core.ball_selection`; ``message`` says it in
+    a sentence, ``hint`` what the crew can do about it.
+    """
+
+    code: str
+    message: str
+    hint: str | None = None
 
 
 @dataclass(frozen=True)
@@ -97,15 +121,12 @@ class BallCandidate:
         sees (0: none has that colour, 1: all of them, fully).
     problem
         Why the sphere's geometry is not a ball's (too few points, radius, residual, coverage), or None.
-    hint
-        What the crew can do about ``problem``.
     """
 
     fit: SphereFit
     expected_points: float
     color_scores: dict[str, float]
-    problem: str | None = None
-    hint: str | None = None
+    problem: Objection | None = None
 
     @property
     def completeness(self) -> float:
@@ -114,22 +135,30 @@ class BallCandidate:
 
     def score(self, color: str, *, radius_m: float) -> float:
         """How likely this is the ``color`` ball, in [0, 1]: completeness times a Gaussian of the radius's
-        relative error (``_RADIUS_SPREAD``) times the colour score."""
+        relative error times the colour score.
+
+        The Gaussian's spread is ``_RADIUS_SPREAD`` widened by the fit's relative residual: in hard sun the
+        depth noise alone moves a small ball's free radius by 10-20 %, and it must not then lose to a
+        cleaner sphere of the wrong size.
+        """
         radius_error = (self.fit.radius_m - radius_m) / radius_m
+        spread = float(np.hypot(_RADIUS_SPREAD, self.fit.rms_m / radius_m))
         return (
             min(self.completeness, 1.0)
-            * float(np.exp(-0.5 * (radius_error / _RADIUS_SPREAD) ** 2))
+            * float(np.exp(-0.5 * (radius_error / spread) ** 2))
             * self.color_scores[color]
         )
 
-    def problem_as(self, color: str, config: BallConfig) -> str | None:
+    def objection(self, color: str, config: BallConfig) -> Objection | None:
         """Why this is not the ``color`` ball: its geometry's problem, or too little of that colour."""
         if self.problem is not None:
             return self.problem
         if self.color_scores[color] < config.min_color_score:
-            return (
+            return Objection(
+                "colour",
                 f"a sphere {self.range_m:.1f} m away has too little of the {color} ball's colour "
-                f"({self.color_scores[color]:.0%} of it, at least {config.min_color_score:.0%} needed)"
+                f"({self.color_scores[color]:.0%} of it, at least {config.min_color_score:.0%} needed)",
+                f"Something else is there; if it is the ball, check calibration_balls.hsv.{color}",
             )
         return None
 
@@ -147,13 +176,34 @@ class ViewBallCandidates:
     candidates: tuple[BallCandidate, ...]
     colored_points: dict[str, int]
     hsv_ranges: dict[str, list[list[int]]]
+    scene: _Scene | None = field(default=None, repr=False, compare=False)
+    """The view's points, for :meth:`sphere_near`."""
+
+    def sphere_near(self, estimate_m: np.ndarray, color: str, config: BallConfig) -> BallCandidate | None:
+        """The sphere of the balls' radius near where the ``color`` ball is expected to be.
+
+        For a ball the other views place here while this one found no sphere there (grass hiding most of
+        it, deep shade, too few points for its normals to vote together): its points that may have its
+        colour are fitted, or, if that fails, all its points whatever their colour (a ball in deep shade
+        is nearly black); the sphere must pass the same geometric checks, but with less of it in view
+        (``min_completeness_where_placed``: where a ball is expected, a fragment of a sphere is one). None
+        when no sphere holds there.
+        """
+        if self.scene is None:
+            return None
+        placed = config.model_copy(update={"min_completeness": config.min_completeness_where_placed})
+        for index in (config.colors.index(color), None):
+            candidate = _candidate_at(estimate_m, index, self.scene, placed)
+            if candidate is not None and candidate.problem is None:
+                return candidate
+        return None
 
     def ranked(self, color: str, config: BallConfig) -> list[BallCandidate]:
         """The candidates for ``color``: plausible ones first, each group likeliest first."""
         return sorted(
             self.candidates,
             key=lambda c: (
-                c.problem_as(color, config) is not None,
+                c.objection(color, config) is not None,
                 -c.score(color, radius_m=config.radius_m),
             ),
         )
@@ -186,7 +236,8 @@ class ViewBallCandidates:
                 "than calibration_balls.diameter_m; check with `canopy balls --preview`",
             )
         best = max(colored, key=lambda c: c.score(color, radius_m=config.radius_m))
-        return BallNotFound(best.problem_as(color, config) or "", view=self.view, color=color, hint=best.hint)
+        objection = best.objection(color, config) or Objection("weaker", "every plausible sphere was taken")
+        return BallNotFound(objection.message, view=self.view, color=color, hint=objection.hint)
 
 
 def color_mask(colors_rgb: np.ndarray, hsv_range: list[list[int]]) -> np.ndarray:
@@ -291,30 +342,46 @@ def find_ball_candidates(cloud: ViewCloud, config: BallConfig) -> ViewBallCandid
     hsv_ranges = {color: config.hsv_range(color) for color in config.colors}
     if seeds.size < config.min_points:
         return ViewBallCandidates(
-            view=cloud.view, candidates=(), colored_points=colored_points, hsv_ranges=hsv_ranges
+            view=cloud.view, candidates=(), colored_points=colored_points, hsv_ranges=hsv_ranges, scene=scene
         )
     normals, ok = scene.normals(seeds, radius_m=config.radius_m)
     seeds, normals = seeds[ok], normals[ok]
     votes = cloud.points_m[seeds] - config.radius_m * normals
     candidates: list[BallCandidate] = []
-    for i in range(len(config.colors)):
+    for i, color in enumerate(config.colors):
         of_color = scene.likelihood[i, seeds] >= _SEED_LIKELIHOOD
         if np.count_nonzero(of_color) < config.min_points:
             continue
-        sure = seeds[scene.likelihood[i, seeds] >= _SURE_LIKELIHOOD]
-        blobs = _blob_centres(cloud.points_m[sure], cloud.pixels[sure], config.radius_m, config.min_points)
-        for peak in [*_vote_peaks(votes[of_color], scene, config.radius_m), *blobs]:
-            if any(np.linalg.norm(peak - other.fit.center_m) < config.radius_m for other in candidates):
-                continue  # that sphere is known already (found for another colour)
-            candidate = _candidate_at(peak, i, scene, config)
-            if candidate is not None and all(
-                np.linalg.norm(candidate.fit.center_m - other.fit.center_m) > config.radius_m
-                for other in candidates
-            ):
-                candidates.append(candidate)
+        peaks = _vote_peaks(votes[of_color], scene.likelihood[i, seeds[of_color]], scene, config.radius_m)
+        _add_candidates(candidates, peaks, i, scene, config)
+        if not any(c.objection(color, config) is None for c in candidates):
+            sure = seeds[scene.likelihood[i, seeds] >= _SURE_LIKELIHOOD]
+            blobs = _blob_centres(
+                cloud.points_m[sure], cloud.pixels[sure], config.radius_m, config.min_points
+            )
+            _add_candidates(candidates, blobs, i, scene, config)
     return ViewBallCandidates(
-        view=cloud.view, candidates=tuple(candidates), colored_points=colored_points, hsv_ranges=hsv_ranges
+        view=cloud.view,
+        candidates=tuple(candidates),
+        colored_points=colored_points,
+        hsv_ranges=hsv_ranges,
+        scene=scene,
     )
+
+
+def _add_candidates(
+    candidates: list[BallCandidate], peaks: list[np.ndarray], color: int, scene: _Scene, config: BallConfig
+) -> None:
+    """Fit a sphere at each peak not within a radius of a known one, and keep each new sphere once."""
+    for peak in peaks:
+        if any(np.linalg.norm(peak - other.fit.center_m) < config.radius_m for other in candidates):
+            continue  # that sphere is known already (found for another colour, or by another peak)
+        candidate = _candidate_at(peak, color, scene, config)
+        if candidate is not None and all(
+            np.linalg.norm(candidate.fit.center_m - other.fit.center_m) > config.radius_m
+            for other in candidates
+        ):
+            candidates.append(candidate)
 
 
 def detect_balls(cloud: ViewCloud, config: BallConfig) -> dict[str, SphereFit]:
@@ -347,7 +414,7 @@ def detect_ball(cloud: ViewCloud, color: str, config: BallConfig) -> SphereFit:
     """
     candidates = find_ball_candidates(cloud, config.model_copy(update={"colors": [color]}))
     ranked = candidates.ranked(color, config)
-    if ranked and ranked[0].problem_as(color, config) is None:
+    if ranked and ranked[0].objection(color, config) is None:
         return ranked[0].fit
     raise candidates.not_found(color, config)
 
@@ -455,34 +522,45 @@ def _intrinsics(cloud: ViewCloud) -> tuple[tuple[float, float], tuple[float, flo
     return (fx, fy), (cx, cy)
 
 
-def _vote_peaks(votes: np.ndarray, scene: _Scene, radius_m: float) -> list[np.ndarray]:
-    """Centres where many votes agree, strongest first, at least a radius apart (non-maximum suppression).
+def _vote_peaks(votes: np.ndarray, weights: np.ndarray, scene: _Scene, radius_m: float) -> list[np.ndarray]:
+    """Centres where many votes agree, likeliest first, at least a radius apart (non-maximum suppression).
 
     A vote's strength is the number of votes within ``_VOTE_RADIUS`` radii of it over the pixels a ball
-    centred there would cover, so near and far balls compare alike. Its concentration is the share of the
+    centred there would cover, so near and far balls compare alike; its concentration is the share of the
     votes within one radius that lie that close: the votes of a sphere gather at a point (0.6-0.9), those of
     a cylinder of the ball's radius (a post, a trunk) along its axis (about ``_VOTE_RADIUS``), those of a
-    plane over a plane (less).
+    plane over a plane (less). Peaks strong and concentrated enough are taken in order of their strength
+    weighted by the colour likelihood of the points that voted (``weights``): a ball of the colour before
+    a trunk of a near colour.
     """
+    ranges = np.linalg.norm(votes, axis=1)
+    sine_sq = np.minimum((radius_m / np.maximum(ranges, radius_m)) ** 2, 1.0)
+    expected = np.maximum(
+        2.0 * np.pi * (1.0 - np.sqrt(1.0 - sine_sq)) * scene.focal_px[0] * scene.focal_px[1], 1.0
+    )
+    # Votes are thinned to about _VOTES_PER_BALL per ball-sized area, so a near or large ball's thousands
+    # of agreeing votes cost no more to count than a far one's; counts are scaled back by the share kept.
+    kept_share = np.minimum(1.0, _VOTES_PER_BALL / expected)
+    kept = np.random.default_rng(0).random(votes.shape[0]) < kept_share
+    votes, weights, expected = votes[kept], weights[kept], expected[kept] * kept_share[kept]
     if votes.shape[0] == 0:
         return []
     tree = cKDTree(votes)
     close = tree.query_ball_point(votes, r=_VOTE_RADIUS * radius_m, return_length=True, workers=-1)
-    ranges = np.linalg.norm(votes, axis=1)
-    sine_sq = np.minimum((radius_m / np.maximum(ranges, radius_m)) ** 2, 1.0)
-    expected = 2.0 * np.pi * (1.0 - np.sqrt(1.0 - sine_sq)) * scene.focal_px[0] * scene.focal_px[1]
-    strength = close / np.maximum(expected, 1.0)
-    order = np.flatnonzero(strength >= _MIN_PEAK)
-    around = tree.query_ball_point(votes[order], r=radius_m, return_length=True, workers=-1)
-    order = order[close[order] >= _MIN_CONCENTRATION * around]
-    order = order[np.argsort(-strength[order], kind="stable")]
+    strength = close / expected
+    eligible = np.flatnonzero(strength >= _MIN_PEAK)
+    eligible = eligible[np.argsort(-strength[eligible], kind="stable")[:_MAX_PEAK_VOTES]]
+    around = tree.query_ball_point(votes[eligible], r=radius_m, return_length=True, workers=-1)
+    eligible = eligible[close[eligible] >= _MIN_CONCENTRATION * around]
+    members = tree.query_ball_point(votes[eligible], r=_VOTE_RADIUS * radius_m, workers=-1)
+    weighted = np.array([weights[m].sum() for m in members]) / expected[eligible]
     suppressed = np.zeros(votes.shape[0], dtype=bool)
     peaks: list[np.ndarray] = []
-    for index in order:
+    for rank in np.argsort(-weighted, kind="stable"):
+        index = eligible[rank]
         if suppressed[index]:
             continue
-        members = tree.query_ball_point(votes[index], r=_VOTE_RADIUS * radius_m)
-        peaks.append(votes[members].mean(axis=0))
+        peaks.append(votes[members[rank]].mean(axis=0))
         suppressed[tree.query_ball_point(votes[index], r=radius_m)] = True
         if len(peaks) == _MAX_PEAKS:
             break
@@ -494,9 +572,10 @@ def _blob_centres(
 ) -> list[np.ndarray]:
     """Likely centres of the compact groups of a colour's points that have a ball's size, largest first.
 
-    The second source of candidates, for small far balls in sun: their few points' normals are too noisy
-    to gather votes, but the points that surely have their colour stand alone. A group is a connected set
-    of pixels (8-neighbourhood) without a depth step of a radius; it is ball-sized when it is one to
+    The second source of candidates, used when the votes found no plausible ball of the colour: a small
+    far ball in sun has normals too noisy to gather votes, but its points that surely have its colour
+    stand alone. A group is a connected set of pixels (8-neighbourhood) without a depth step of a radius;
+    it is ball-sized when it is one to
     ``_MAX_BLOB_DIAMETERS`` diameters across at its depth. Its likely centre lies one radius behind its
     mean point, along the line of sight.
     """
@@ -537,37 +616,55 @@ def _blob_labels(points_m: np.ndarray, pixels: np.ndarray, *, max_depth_step_m: 
     return np.asarray(connected_components(graph, directed=False)[1])
 
 
-def _candidate_at(peak: np.ndarray, color: int, scene: _Scene, config: BallConfig) -> BallCandidate | None:
+def _candidate_at(
+    peak: np.ndarray, color: int | None, scene: _Scene, config: BallConfig
+) -> BallCandidate | None:
     """The sphere near a vote peak of the votes of colour ``color`` (its index), described; None when no
     sphere of the radius holds there.
 
     The sphere is fitted to the points near the peak that surely have the colour (likelihood at least
-    ``_SURE_LIKELIHOOD``; all those that may have it when they are too few), and then counted on all that
-    may have it (at least ``_MAYBE_LIKELIHOOD``): a ball's shaded side adds to its points, while the mixed
-    pixels at its rim, whose colour is part background, do not pull its centre. Points the colour camera
-    does not see count as both.
+    ``_SURE_LIKELIHOOD``), and then counted on all that may have it (at least ``_MAYBE_LIKELIHOOD``): a
+    ball's shaded side adds to its points, while the mixed pixels at its rim, whose colour is part
+    background, do not pull its centre. When that sphere is not a ball's (too few sure points, or a
+    sunlit half that misleads the fit), all that may have the colour are fitted, and the better of the
+    two is kept. Points the colour camera does not see count as both; with ``color`` None, every point
+    does.
     """
     radius = config.radius_m
     window = scene.window(peak, radius, radii=_NEAR_RADII + 0.5)
     points = scene.cloud.points_m[window]
-    unseen = ~scene.cloud.has_color[window]
-    likelihood = scene.likelihood[color, window]
+    unseen = ~scene.cloud.has_color[window] if color is not None else np.ones(window.size, dtype=bool)
+    likelihood = scene.likelihood[color, window] if color is not None else np.ones(window.size)
     near = np.linalg.norm(points - peak, axis=1) < _NEAR_RADII * radius
     maybe = points[near & ((likelihood >= _MAYBE_LIKELIHOOD) | unseen)]
     sure = points[near & ((likelihood >= _SURE_LIKELIHOOD) | unseen)]
+    needed = max(config.min_points, config.min_completeness * scene.pixels_of_ball(peak, radius))
+    if maybe.shape[0] < needed:
+        return None  # fewer points than a ball there shows, before any fit: not worth one
     outline = scene.cloud.points_m[scene.window(peak, radius, radii=_OUTLINE_RADII + 0.5)]
-    fit = None
+    maybe_indices = window[near][(likelihood[near] >= _MAYBE_LIKELIHOOD) | unseen[near]]
+    best: BallCandidate | None = None
     for fitted in (sure, maybe) if sure.shape[0] >= config.min_points else (maybe,):
         try:
-            fit = _fit_near(fitted, outline, config)
-            break
+            fit = _fit_near(fitted, outline, config, min_start_inliers=_START_SHARE * needed)
         except ValueError:
             continue  # no sphere of about the radius through these points
-    if fit is None:
-        return None
+        candidate = _described(fit, maybe, maybe_indices, scene, config)
+        if candidate.problem is None:
+            return candidate
+        if best is None or candidate.fit.points > best.fit.points:
+            best = candidate
+    return best
+
+
+def _described(
+    fit: SphereFit, maybe: np.ndarray, maybe_indices: np.ndarray, scene: _Scene, config: BallConfig
+) -> BallCandidate:
+    """A fitted sphere as a candidate: its points counted on every point that may be the ball's
+    (``maybe``, whose indices into the view are ``maybe_indices``), its colour scores, its problem."""
+    radius = config.radius_m
     tolerance = _range_tolerance(config.inlier_tolerance_m, fit.center_m)
-    on_sphere = window[near][(likelihood[near] >= _MAYBE_LIKELIHOOD) | unseen[near]]
-    on_sphere = on_sphere[sphere_inliers(maybe, np.append(fit.center_m, radius), tolerance, minimum=0)]
+    on_sphere = maybe_indices[sphere_inliers(maybe, np.append(fit.center_m, radius), tolerance, minimum=0)]
     colored = on_sphere[scene.cloud.has_color[on_sphere]]
     scores = {
         name: float(scene.likelihood[i, colored].mean()) if colored.size else 0.0
@@ -575,29 +672,34 @@ def _candidate_at(peak: np.ndarray, color: int, scene: _Scene, config: BallConfi
     }
     fit = replace(fit, points=max(fit.points, int(on_sphere.size)))
     expected = scene.pixels_of_ball(fit.center_m, radius)
-    problem, hint = _geometry_problem(fit, config, expected_points=expected) or (None, None)
-    return BallCandidate(fit=fit, expected_points=expected, color_scores=scores, problem=problem, hint=hint)
+    problem = _geometry_problem(fit, config, expected_points=expected)
+    return BallCandidate(fit=fit, expected_points=expected, color_scores=scores, problem=problem)
 
 
-def _fit_near(points: np.ndarray, outline: np.ndarray, config: BallConfig) -> SphereFit:
+def _fit_near(
+    points: np.ndarray, outline: np.ndarray, config: BallConfig, *, min_start_inliers: float
+) -> SphereFit:
     """RANSAC then robust least squares on ``points``; ``outline`` holds every point seen around them.
 
     Raises
     ------
     ValueError
-        When no sphere of about the radius holds four of the points.
+        When no sphere of about the radius holds four of the points, or the RANSAC sphere holds fewer than
+        ``min_start_inliers`` (the least squares, most of a view's detection time, would be wasted).
     """
     if points.shape[0] < 4:
         raise ValueError(f"{points.shape[0]} points cannot fix a sphere")
     centre = ransac_centre(
         points, config.radius_m, config.inlier_tolerance_m, config.ransac_iterations, np.random.default_rng(0)
     )
+    tolerance = _range_tolerance(config.inlier_tolerance_m, centre)
+    sphere_inliers(points, np.append(centre, config.radius_m), tolerance, minimum=int(min_start_inliers))
     fit, _ = refine_sphere(
         points,
         centre,
         config.radius_m,
         nominal_radius_m=config.radius_m,
-        tolerance_m=_range_tolerance(config.inlier_tolerance_m, centre),
+        tolerance_m=tolerance,
         scene_m=outline,
     )
     return fit
@@ -608,31 +710,33 @@ def _range_tolerance(tolerance_m: float, centre: np.ndarray) -> float:
     return tolerance_m * max(1.0, (float(np.linalg.norm(centre)) / _TOLERANCE_REFERENCE_RANGE_M) ** 2)
 
 
-def _geometry_problem(
-    fit: SphereFit, config: BallConfig, *, expected_points: float
-) -> tuple[str, str] | None:
-    """Why a sphere is not a calibration ball by its shape (message and hint), or None when it could be."""
+def _geometry_problem(fit: SphereFit, config: BallConfig, *, expected_points: float) -> Objection | None:
+    """Why a sphere is not a calibration ball by its shape, or None when it could be."""
     needed = max(config.min_points, int(np.ceil(config.min_completeness * expected_points)))
     if fit.points < needed:
-        return (
+        return Objection(
+            "points",
             f"too few points on a sphere: {fit.points} found, where a ball "
             f"{np.linalg.norm(fit.center_m):.1f} m away would show about {expected_points:.0f} (at least "
             f"{needed} needed)",
             "The ball may be mostly hidden or badly lit, or something smaller of its colour was found",
         )
     if abs(fit.radius_m - config.radius_m) > config.max_radius_error * config.radius_m:
-        return (
+        return Objection(
+            "radius",
             f"fitted radius {fit.radius_m * 1000:.0f} mm, expected {config.radius_m * 1000:.0f} mm "
             f"(more than {config.max_radius_error:.0%} off)",
             "Something else of that colour may be taken for the ball; check balls.diameter_m",
         )
     if fit.rms_m > config.max_rms_m:
-        return (
+        return Objection(
+            "residual",
             f"sphere fit residual {fit.rms_m * 1000:.1f} mm exceeds {config.max_rms_m * 1000:.1f} mm",
             "The ball's surface is too noisy or partly hidden; move closer or raise balls.max_rms_m",
         )
     if fit.coverage < config.min_coverage:
-        return (
+        return Objection(
+            "coverage",
             f"only {fit.coverage:.0%} of the points seen through the fitted sphere's outline lie on it, "
             f"where a ball shows nearly all: it spans unrelated surfaces, or the depth there is too noisy",
             "Something else of that colour may be in view, or the ball is too far for this light",

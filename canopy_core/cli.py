@@ -7,6 +7,7 @@ error the core raises on purpose is printed as one line on stderr with exit code
 from __future__ import annotations
 
 import json
+import os
 import sys
 from pathlib import Path
 from typing import Annotated, Any
@@ -68,36 +69,58 @@ def measure(
 
 
 @app.command()
-def balls(capture: CaptureArg, as_json: JsonOpt = False) -> None:
-    """Find the calibration balls in every view: centre, fitted radius, points and residual."""
-    from canopy_core.balls import detect_balls
-    from canopy_core.capture import load_capture
-    from canopy_core.measure import config_for, filtered_cloud
+def balls(
+    capture: CaptureArg,
+    as_json: JsonOpt = False,
+    preview: Annotated[
+        Path | None,
+        typer.Option(
+            "--preview",
+            help="Write each view's colour image with its balls drawn to DIR (views/1 as views_1.png).",
+        ),
+    ] = None,
+    show_all: Annotated[
+        bool, typer.Option("--all", help="List every rejected sphere (by default 3 per colour, 5 in JSON).")
+    ] = False,
+) -> None:
+    """Show per view and colour the ball chosen, as the measurement chooses it, and why each other sphere
+    was not (radius, points, residual, coverage, colour, floating, taken, inconsistent).
 
+    When the selection fails, what each view shows on its own is still printed, then the error (exit 2).
+    """
+    from canopy_core.ball_preview import ball_report, draw_ball_preview
+    from canopy_core.capture import load_capture
+    from canopy_core.measure import ball_evidence, config_for, filtered_cloud
+
+    if preview is not None:
+        try:
+            preview.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise CanopyError(
+                f"cannot create the preview folder {preview}: {exc}", field="--preview"
+            ) from exc
+        if not os.access(preview, os.W_OK):
+            raise CanopyError(f"cannot write to the preview folder {preview}", field="--preview")
     loaded = load_capture(capture)
     config = config_for(loaded.manifest)
-    found = {}
-    for view in loaded.views:
-        cloud = filtered_cloud(view, config.filters)
-        found[view.name] = detect_balls(cloud, config.balls)
+    views, grounds = ball_evidence([filtered_cloud(view, config.filters) for view in loaded.views], config)
+    report = ball_report(views, config.balls, grounds=grounds)
+    if preview is not None:
+        from PIL import Image
+
+        for view, choice in zip(loaded.views, report.choices, strict=True):
+            path = preview / f"{view.name.replace('/', '_')}.png"
+            try:
+                Image.fromarray(draw_ball_preview(view, choice, config.balls)).save(path)
+            except OSError as exc:
+                raise CanopyError(f"cannot write the preview {path}: {exc}", field="--preview") from exc
     if as_json:
-        _print_json(
-            {
-                "views": {
-                    name: {color: fit.to_dict() for color, fit in fits.items()}
-                    for name, fits in found.items()
-                }
-            }
-        )
-        return
-    for name, fits in found.items():
-        for color, fit in fits.items():
-            x, y, z = fit.center_m
-            typer.echo(
-                f"{name} {color:<7} centre ({x:+.3f}, {y:+.3f}, {z:+.3f}) m  "
-                f"radius {fit.radius_m * 1000:.1f} mm  "
-                f"{fit.points} points  rms {fit.rms_m * 1000:.1f} mm"
-            )
+        _print_json(report.to_dict(limit=None if show_all else 5))
+    else:
+        for line in report.lines(limit=None if show_all else 3):
+            typer.echo(line)
+    if report.error is not None:
+        raise report.error
 
 
 @app.command()

@@ -110,6 +110,13 @@ class BallConfig(BallSet):
         description="Least fraction of the pixels a ball at the fitted centre would cover that must lie on "
         "it.",
     )
+    min_completeness_where_placed: float = Field(
+        0.15,
+        gt=0.0,
+        le=1.0,
+        description="As min_completeness, for a sphere found where the other views place a ball (grass "
+        "hiding most of it): that the balls' triangle puts it there is evidence a fragment lacks.",
+    )
     min_coverage: float = Field(
         0.6,
         gt=0.0,

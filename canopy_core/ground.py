@@ -17,6 +17,7 @@ from scipy.spatial import cKDTree
 from canopy_core.config import GroundConfig
 
 __all__ = [
+    "CAMERA_UP",
     "GroundFrame",
     "GroundHeightMap",
     "GroundPlane",
@@ -27,6 +28,8 @@ __all__ = [
     "view_ground_plane",
 ]
 
+CAMERA_UP = np.array([0.0, -1.0, 0.0])
+"""Up for a camera held roughly level, in its own frame (OpenCV axes: y points down)."""
 _MAX_GROUND_TILT_DEG = 15.0
 """A ground fit tilted more than this from the balls' plane has found something else (a wall, a slope)."""
 _RANSAC_SAMPLE = 20_000

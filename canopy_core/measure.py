@@ -20,14 +20,16 @@ from pydantic import ValidationError
 
 from canopy_core.backproject import ViewCloud, backproject
 from canopy_core.ball_selection import select_balls
-from canopy_core.balls import find_ball_candidates
+from canopy_core.balls import ViewBallCandidates, find_ball_candidates
 from canopy_core.capture import Capture, CaptureManifest, View, load_capture
 from canopy_core.config import FilterConfig, MeasureConfig
 from canopy_core.errors import CaptureError, ConfigError, MeasurementError, RegistrationFailed
 from canopy_core.filters import reliable_depth_mask, sparse_point_mask
 from canopy_core.foliage import foliage_mask
 from canopy_core.ground import (
+    CAMERA_UP,
     GroundFrame,
+    GroundPlane,
     fit_ground_frame,
     ground_height_map,
     horizontal_distance,
@@ -39,7 +41,16 @@ from canopy_core.register import apply, register_by_balls
 from canopy_core.segment import tree_component
 from canopy_core.spheres import SphereFit
 
-__all__ = ["STAGES", "Measurement", "Progress", "ViewDiagnostics", "config_for", "filtered_cloud", "measure"]
+__all__ = [
+    "STAGES",
+    "Measurement",
+    "Progress",
+    "ViewDiagnostics",
+    "ball_evidence",
+    "config_for",
+    "filtered_cloud",
+    "measure",
+]
 
 Progress = Callable[[str, float], None]
 """Called with a stage name and the overall progress in [0, 1] as each stage starts."""
@@ -47,8 +58,6 @@ Progress = Callable[[str, float], None]
 STAGES = ("load", "filter", "balls", "register", "ground", "refine", "metrics", "done")
 
 MERGED = "merged"
-_CAMERA_UP = np.array([0.0, -1.0, 0.0])
-"""Up for a camera held roughly level, in its own frame (OpenCV axes: y points down)."""
 _GROUND_SAMPLE = 60_000
 _TREE_CLEARANCE_M = 0.12
 """Tree points start this high above the ground: below it are the ground, grass and the balls."""
@@ -59,7 +68,8 @@ class ViewDiagnostics:
     """What happened to one view: points kept, balls found, how it registered.
 
     ``unreliable_pixels_removed`` counts depth readings out of range or flying; ``sparse_points_removed``
-    the points inside the region of interest dropped as strays.
+    the points inside the region of interest dropped as strays; ``balls_found_by_position`` the colours
+    whose ball was found where the other views placed it, having shown too little of its colour.
     """
 
     view: str
@@ -69,6 +79,7 @@ class ViewDiagnostics:
     sparse_points_removed: int
     tree_points: int
     balls: dict[str, SphereFit]
+    balls_found_by_position: tuple[str, ...]
     ball_residual_m: float
     world_from_view: np.ndarray
     icp: IcpRefinement | None
@@ -82,6 +93,7 @@ class ViewDiagnostics:
             "sparse_points_removed": self.sparse_points_removed,
             "tree_points": self.tree_points,
             "balls": {color: fit.to_dict() for color, fit in self.balls.items()},
+            "balls_found_by_position": list(self.balls_found_by_position),
             "ball_residual_m": self.ball_residual_m,
             "world_from_view": self.world_from_view.round(6).tolist(),
             "icp": self.icp.to_dict() if self.icp else None,
@@ -225,16 +237,8 @@ def measure(
     clouds = [filtered_cloud(view, config.filters) for view in capture.views]
 
     stages.start("balls")
-    choices = select_balls(
-        [find_ball_candidates(cloud, config.balls) for cloud in clouds],
-        config.balls,
-        grounds=[
-            view_ground_plane(
-                cloud.points_m, up_hint=_CAMERA_UP, tolerance_m=config.ground.inlier_tolerance_m
-            )
-            for cloud in clouds
-        ],
-    )
+    candidates, grounds = ball_evidence(clouds, config)
+    choices = select_balls(candidates, config.balls, grounds=grounds)
     balls = [{color: candidate.fit for color, candidate in choice.chosen.items()} for choice in choices]
 
     stages.start("register")
@@ -279,6 +283,7 @@ def measure(
             sparse_points_removed=outliers[i],
             tree_points=int(np.count_nonzero(tree_masks[i])),
             balls=balls[i],
+            balls_found_by_position=choices[i].found_by_position,
             ball_residual_m=_ball_residual(view_to_reference[i], centres[i], centres[0]),
             world_from_view=world_from_view[i],
             icp=icp_reports[i],
@@ -316,6 +321,20 @@ def filtered_cloud(view: View, filters: FilterConfig) -> ViewCloud:
             hint="check camera.json's depth_scale (depth units per metre)",
         )
     return backproject(view, keep=keep)
+
+
+def ball_evidence(
+    clouds: list[ViewCloud], config: MeasureConfig
+) -> tuple[list[ViewBallCandidates], list[GroundPlane | None]]:
+    """What the balls are chosen from: each view's spheres and its ground plane (None where none is
+    found), as the measurement and ``canopy balls`` both need them."""
+    return (
+        [find_ball_candidates(cloud, config.balls) for cloud in clouds],
+        [
+            view_ground_plane(cloud.points_m, up_hint=CAMERA_UP, tolerance_m=config.ground.inlier_tolerance_m)
+            for cloud in clouds
+        ],
+    )
 
 
 def _modes(
@@ -362,7 +381,7 @@ def _ground_frame(
         np.concatenate(sample),
         ball_centres,
         ball_radius_m=config.balls.radius_m,
-        up_hint=_CAMERA_UP,
+        up_hint=CAMERA_UP,
         forward_hint=np.array([0.0, 0.0, 1.0]),
         search_radius_m=config.roi.radius_m,
         config=config.ground,

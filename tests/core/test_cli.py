@@ -9,8 +9,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from PIL import Image
 
 from canopy_core.cloud_io import read_ply
+from tests.core.edits import take_away_ball
 
 CANOPY = str(Path(sys.executable).with_name("canopy"))
 
@@ -48,16 +50,132 @@ def test_measure_json_prints_merged_metrics_modes_and_registration(capture: Path
     assert points[:, 2].max() == pytest.approx(document["height_m"], abs=0.1)
 
 
-def test_balls_json_reports_every_view_and_colour(capture: Path) -> None:
-    done = _run("balls", str(capture), "--json")
+REASON_CODES = {"radius", "points", "residual", "coverage", "colour", "floating", "taken", "inconsistent"}
+
+
+@pytest.fixture(scope="module")
+def balls_run(capture: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[dict, Path]:
+    """`canopy balls --json --preview` on the capture, once: the document and the (new) preview folder."""
+    preview = tmp_path_factory.mktemp("preview") / "not" / "yet"
+    done = _run("balls", str(capture), "--json", "--preview", str(preview))
     assert done.returncode == 0, done.stderr
-    views = json.loads(done.stdout)["views"]
+    return json.loads(done.stdout), preview
+
+
+def test_balls_json_reports_every_view_and_colour(balls_run: tuple[dict, Path]) -> None:
+    document, _ = balls_run
+    assert "error" not in document
+    views = document["views"]
     assert set(views) == {"views/1", "views/2"}
+    rejected = []
     for fits in views.values():
         assert set(fits) == {"red", "yellow", "blue"}
         for fit in fits.values():
             assert len(fit["center_m"]) == 3 and np.isfinite(fit["center_m"]).all()
             assert fit["radius_m"] == pytest.approx(0.05, abs=0.01) and fit["points"] > 0
+            assert fit["rms_m"] >= 0 and len(fit["rejected"]) <= 5
+            rejected += fit["rejected"]
+    assert rejected, "the simulated scene has spheres that are not balls (the post, apples in the crown)"
+    for sphere in rejected:
+        assert {"center_m", "radius_m", "points", "reason", "code"} <= set(sphere)
+        assert sphere["code"] in REASON_CODES and sphere["reason"]
+
+
+def _project_truth(capture: Path, view: str, color: str) -> tuple[np.ndarray, float]:
+    """Where the simulator put a ball in a view's colour image: pixel centre and radius, full size."""
+    truth = json.loads((capture / "ground_truth.json").read_text())
+    camera = json.loads((capture / view / "camera.json").read_text())
+    world = np.append(truth["balls"][color]["center_m"], 1.0)
+    in_depth = np.linalg.inv(np.array(truth["views"][view]["camera_to_world"])) @ world
+    in_color = np.array(camera["depth_to_color"]) @ in_depth
+    intrinsics = camera["color_intrinsics"]
+    x, y, z = in_color[:3]
+    centre = np.array(
+        [intrinsics["fx"] * x / z + intrinsics["cx"], intrinsics["fy"] * y / z + intrinsics["cy"]]
+    )
+    return centre, intrinsics["fx"] * truth["balls"][color]["diameter_m"] / 2 / z
+
+
+def test_balls_preview_circles_each_ball_in_its_colour(capture: Path, balls_run: tuple[dict, Path]) -> None:
+    from canopy_core.ball_preview import ball_rgb
+    from canopy_core.config import BallConfig
+
+    _, preview = balls_run
+    assert sorted(p.name for p in preview.iterdir()) == ["views_1.png", "views_2.png"]
+    for view in ("views/1", "views/2"):
+        image = np.asarray(Image.open(preview / f"{view.replace('/', '_')}.png").convert("RGB"))
+        color_image = Image.open(next((capture / view).glob("color.*")))
+        assert image.shape[1] <= 960
+        assert image.shape[1] / image.shape[0] == pytest.approx(
+            color_image.width / color_image.height, rel=0.01
+        )
+        scale = image.shape[1] / color_image.width
+        for color in ("red", "yellow", "blue"):
+            centre, radius = _project_truth(capture, view, color)
+            drawn = np.array(ball_rgb(color, BallConfig()))
+            angles = np.linspace(0, 2 * np.pi, 24, endpoint=False)
+            ring = [
+                np.rint(centre * scale + (radius * scale + offset) * np.array([np.cos(a), np.sin(a)]))
+                for a in angles
+                for offset in (2, 3, 4)  # the outline, 3 px thick, lies just outside the ball
+            ]
+            hits = [np.abs(image[int(v), int(u)].astype(int) - drawn).max() <= 12 for u, v in ring]
+            assert np.mean(hits) > 0.8, (view, color)  # 0.2 or less with the colour camera's offset ignored
+            u, v = np.rint(centre * scale).astype(int)  # the ball itself stays in sight, undrawn
+            assert np.abs(image[v, u].astype(int) - drawn).max() > 12, (view, color)
+
+
+def test_balls_failing_selection_still_shows_every_view_and_exits_2(capture: Path, tmp_path: Path) -> None:
+    import shutil
+
+    broken = Path(shutil.copytree(capture, tmp_path / "broken"))
+    take_away_ball(broken, "views/2", "blue")
+    done = _run("balls", str(broken), "--json", "--preview", str(tmp_path / "preview"))
+    assert done.returncode == 2
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and "views/2" in lines[0] and "blue" in lines[0]
+    document = json.loads(done.stdout)
+    assert document["error"]["view"] == "views/2" and document["error"]["color"] == "blue"
+    views = document["views"]
+    assert all("center_m" in views["views/1"][color] for color in ("red", "yellow", "blue"))
+    assert all("center_m" in views["views/2"][color] for color in ("red", "yellow"))
+    assert "center_m" not in views["views/2"]["blue"] and views["views/2"]["blue"]["problem"]
+    assert sorted(p.name for p in (tmp_path / "preview").iterdir()) == ["views_1.png", "views_2.png"]
+
+    text = _run("balls", str(broken))
+    assert text.returncode == 2 and text.stderr.strip() == lines[0]
+    shown = text.stdout.splitlines()
+    assert shown[0].startswith("ball selection failed")
+    for color in ("red", "yellow", "blue"):
+        assert any(line.startswith(f"views/1 {color:<7} centre (") for line in shown)
+    assert any(line.startswith("views/2 blue    no ball: ") for line in shown)
+
+
+def test_balls_with_one_colour_chooses_in_each_view_alone(
+    capture: Path, balls_run: tuple[dict, Path], tmp_path: Path
+) -> None:
+    import shutil
+
+    single = Path(shutil.copytree(capture, tmp_path / "yellow"))
+    manifest = json.loads((single / "capture.json").read_text())
+    manifest["calibration_balls"]["colors"] = ["yellow"]
+    (single / "capture.json").write_text(json.dumps(manifest))
+    done = _run("balls", str(single), "--json", "--all")
+    assert done.returncode == 0, done.stderr
+    for view, fits in json.loads(done.stdout)["views"].items():
+        assert list(fits) == ["yellow"]
+        found, with_three = fits["yellow"], balls_run[0]["views"][view]["yellow"]
+        assert found["center_m"] == pytest.approx(with_three["center_m"], abs=0.005)
+        assert all(sphere["code"] in {*REASON_CODES, "weaker"} for sphere in found["rejected"])
+
+
+def test_balls_preview_into_a_file_fails_naming_the_option(capture: Path, tmp_path: Path) -> None:
+    blocker = tmp_path / "a-file"
+    blocker.write_text("not a folder")
+    done = _run("balls", str(capture), "--preview", str(blocker / "preview"))
+    assert done.returncode == 2 and done.stdout == ""
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and "--preview" in lines[0]
 
 
 def test_invalid_capture_exits_2_with_one_line_naming_the_file(capture: Path, tmp_path: Path) -> None:

@@ -5,14 +5,13 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pytest
-from PIL import Image
 
 from canopy_core.errors import BallNotFound
 from canopy_core.measure import STAGES, Measurement, measure
 from canopy_core.simulate import simulate_capture
+from tests.core.edits import paint_blue_grey, take_away_ball
 
 
 def _truth(capture: Path) -> dict:
@@ -93,19 +92,31 @@ def test_three_views_are_registered_together(tmp_path: Path) -> None:
     assert result.merged.width_m == pytest.approx(_truth(capture)["width_m"], rel=0.04)
 
 
-def test_ball_painted_over_fails_naming_view_and_colour(native_capture: Path, tmp_path: Path) -> None:
+def test_ball_taken_away_in_one_view_fails_naming_view_and_colour(
+    native_capture: Path, tmp_path: Path
+) -> None:
     import shutil
 
     broken = Path(shutil.copytree(native_capture, tmp_path / "broken"))
-    color_file = next((broken / "views/2").glob("color.*"))
-    rgb = np.asarray(Image.open(color_file).convert("RGB")).copy()
-    hsv = cv2.cvtColor(rgb, cv2.COLOR_RGB2HSV)
-    blue = (hsv[..., 0] > 95) & (hsv[..., 0] < 135) & (hsv[..., 1] > 80)
-    rgb[blue] = (120, 110, 100)
-    Image.fromarray(rgb).save(color_file)
+    take_away_ball(broken, "views/2", "blue")
     with pytest.raises(BallNotFound) as info:
         measure(broken)
     assert info.value.view == "views/2" and info.value.color == "blue"
+
+
+def test_ball_painted_grey_in_one_view_is_found_where_the_other_views_place_it(
+    native_capture: Path, native_result: Measurement, tmp_path: Path
+) -> None:
+    import shutil
+
+    grey = Path(shutil.copytree(native_capture, tmp_path / "grey"))
+    paint_blue_grey(grey, "views/2")
+    result = measure(grey)
+    second = result.views[1]
+    assert second.balls_found_by_position == ("blue",)
+    assert np.linalg.norm(
+        second.balls["blue"].center_m - native_result.views[1].balls["blue"].center_m
+    ) < 0.003
 
 
 def test_one_view_capture_is_measured_in_its_own_ground_frame(tmp_path: Path) -> None:
