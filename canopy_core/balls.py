@@ -41,6 +41,9 @@ __all__ = [
     "find_ball_candidates",
 ]
 
+_SATURATION_FALL = 3.0
+"""Below the range's floor the saturation term falls as this power of the saturation's share of the floor:
+bark and posts at 60-70 % of the red ball's floor saturation score 0.2-0.35, a ball in shade still 1."""
 _SEED_LIKELIHOOD = 0.3
 """Points whose colour likelihood for some ball reaches this vote for sphere centres (a shaded or
 white-balance-shifted ball pixel reaches 0.4 or more; the fit then takes every point near the sphere)."""
@@ -70,7 +73,7 @@ _MAX_PEAKS = 8
 """At most this many vote peaks per colour and view are fitted (bounds the time per view)."""
 _NEAR_RADII = 1.6
 """A peak's sphere is fitted to the points within this many radii of it (its centre is a few cm off)."""
-_SURE_LIKELIHOOD = 0.8
+_SURE_LIKELIHOOD = 0.9
 """Points near a peak with this likelihood of its colour or more surely have it and are fitted: within its
 range or just outside it. (On the real Kinect v2 frames, fitting every point of likelihood 0.05 or more lets
 the rim's mixed pixels pull the centre: 3.5 mm median error against 1.9.)"""
@@ -263,8 +266,9 @@ def color_likelihood(colors_rgb: np.ndarray, hsv_range: list[list[int]], *, hue_
     """How much each colour looks like a ball's colour, in [0, 1]: 1 inside the HSV range, less outside.
 
     Outside the range the hue term falls as a Gaussian of the hue's distance to it (``hue_spread``, OpenCV
-    units), and saturation or value below the range's floor scale the likelihood down in proportion (a
-    shaded ball keeps its hue but loses value; grey and black things have no reliable hue). Chromaticity
+    units); value below the range's floor scales the likelihood down in proportion (a shaded ball keeps
+    its hue and saturation but loses value), saturation below it as its cube (shade and exposure leave
+    saturation nearly as it is, so a paler colour, bark or straw, is not the ball's). Chromaticity
     (hue, saturation) does not change with exposure, and a white-balance drift of 20 % moves a saturated
     colour's hue by a few units only, so a ball keeps a high likelihood in any light.
 
@@ -299,7 +303,8 @@ def _likelihood(hsv: np.ndarray, hsv_range: list[list[int]], *, hue_spread: floa
         return (inside & (value >= v_low) & (value <= v_high)).astype(np.float32)
     distance = np.minimum(_hue_distance(hue, h_low), _hue_distance(hue, h_high))
     hue_term = np.where(inside_hue, 1.0, np.exp(-0.5 * (distance / hue_spread) ** 2))
-    return (hue_term * _band_term(saturation, s_low, s_high) * _band_term(value, v_low, v_high)).astype(
+    saturation_term = _band_term(saturation, s_low, s_high) ** _SATURATION_FALL
+    return (hue_term * saturation_term * _band_term(value, v_low, v_high)).astype(
         np.float32
     )
 
@@ -466,7 +471,9 @@ class _Scene:
 
         Each normal is the least-variance direction of the point and its 8 neighbours at a pixel step
         that spans ``_NORMAL_BASELINE`` ball radii at the point's range (so the normal of a far ball's
-        point, or of a big ball's, is as precise), among those on the same surface (depth within a radius).
+        point, or of a big ball's, is as precise), among those on the same surface (depth within a radius):
+        a plane fit, which, unlike differences across the point, still holds where a neighbour on one side
+        is hidden (a ball half in grass).
         """
         rows, cols = self.cloud.pixels[indices, 0], self.cloud.pixels[indices, 1]
         centre = self.cloud.points_m[indices]
@@ -482,8 +489,7 @@ class _Scene:
         weights = used[:, :, None].astype(np.float64)
         mean = (points * weights).sum(axis=1) / np.maximum(count, 1)[:, None]
         centred = (points - mean[:, None, :]) * weights
-        covariance = np.einsum("nki,nkj->nij", centred, centred)
-        _, vectors = np.linalg.eigh(covariance)
+        _, vectors = np.linalg.eigh(np.einsum("nki,nkj->nij", centred, centred))
         normals = vectors[:, :, 0]
         normals *= np.where(np.einsum("ij,ij->i", normals, centre) > 0.0, -1.0, 1.0)[:, None]
         return normals, count >= _MIN_NORMAL_NEIGHBOURS
@@ -546,13 +552,13 @@ def _vote_peaks(votes: np.ndarray, weights: np.ndarray, scene: _Scene, radius_m:
     if votes.shape[0] == 0:
         return []
     tree = cKDTree(votes)
-    close = tree.query_ball_point(votes, r=_VOTE_RADIUS * radius_m, return_length=True, workers=-1)
+    close = tree.query_ball_point(votes, r=_VOTE_RADIUS * radius_m, return_length=True)
     strength = close / expected
     eligible = np.flatnonzero(strength >= _MIN_PEAK)
     eligible = eligible[np.argsort(-strength[eligible], kind="stable")[:_MAX_PEAK_VOTES]]
-    around = tree.query_ball_point(votes[eligible], r=radius_m, return_length=True, workers=-1)
+    around = tree.query_ball_point(votes[eligible], r=radius_m, return_length=True)
     eligible = eligible[close[eligible] >= _MIN_CONCENTRATION * around]
-    members = tree.query_ball_point(votes[eligible], r=_VOTE_RADIUS * radius_m, workers=-1)
+    members = tree.query_ball_point(votes[eligible], r=_VOTE_RADIUS * radius_m)
     weighted = np.array([weights[m].sum() for m in members]) / expected[eligible]
     suppressed = np.zeros(votes.shape[0], dtype=bool)
     peaks: list[np.ndarray] = []
@@ -713,6 +719,13 @@ def _range_tolerance(tolerance_m: float, centre: np.ndarray) -> float:
 def _geometry_problem(fit: SphereFit, config: BallConfig, *, expected_points: float) -> Objection | None:
     """Why a sphere is not a calibration ball by its shape, or None when it could be."""
     needed = max(config.min_points, int(np.ceil(config.min_completeness * expected_points)))
+    if fit.points > config.max_completeness * expected_points:
+        return Objection(
+            "points",
+            f"{fit.points} points on a sphere where a ball {np.linalg.norm(fit.center_m):.1f} m away shows "
+            f"at most about {expected_points:.0f}: a larger surface (a post, a trunk) fits it",
+            "Something else of that colour and about the ball's curvature is in view",
+        )
     if fit.points < needed:
         return Objection(
             "points",

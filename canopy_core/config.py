@@ -110,6 +110,13 @@ class BallConfig(BallSet):
         description="Least fraction of the pixels a ball at the fitted centre would cover that must lie on "
         "it.",
     )
+    max_completeness: float = Field(
+        1.5,
+        gt=1.0,
+        description="Most points a ball's sphere may hold, as a multiple of the pixels a ball there covers "
+        "(a ball shows 0.5-1.2 with its rim's mixed pixels; a post's or trunk's band on a sphere of the "
+        "ball's radius shows 1.6-2).",
+    )
     min_completeness_where_placed: float = Field(
         0.15,
         gt=0.0,
