@@ -15,7 +15,7 @@ from scipy.ndimage import gaussian_filter
 
 from canopy_core.simulate.mesh import Mesh, SurfaceKind, hsv_to_rgb
 
-__all__ = ["Ground", "random_ground"]
+__all__ = ["Ground", "random_ground", "smooth_field"]
 
 _CELL_M = 0.1
 _INNER_CELLS = 55
@@ -92,9 +92,14 @@ def _grid_triangles(nx: int, ny: int) -> np.ndarray:
     return np.concatenate([np.stack([v00, v10, v11], 1), np.stack([v00, v11, v01], 1)]).astype(np.int32)
 
 
-def _patchiness(rng: np.random.Generator, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """A smooth field in [0, 1]: where it is high the grass is dry and yellowish."""
-    field = np.zeros_like(x) + rng.uniform(-1.0, 0.5)
+def smooth_field(
+    rng: np.random.Generator, x: np.ndarray, y: np.ndarray, *, offset: tuple[float, float]
+) -> np.ndarray:
+    """A smooth random field in [0, 1] varying over metres at horizontal positions ``(x, y)``: the share
+    of a floor's second material (dry grass in green grass, soil in straw). Four plane waves of 1-4 m
+    wavelength summed with an offset drawn from ``offset`` (lower: less of the second material), then
+    squashed by a logistic."""
+    field = np.zeros_like(x) + rng.uniform(*offset)
     for _ in range(4):
         direction = rng.uniform(0.0, 2 * np.pi)
         along = x * np.cos(direction) + y * np.sin(direction)
@@ -121,7 +126,7 @@ def _colors(rng: np.random.Generator, centroids: np.ndarray, strip_half_width_m:
     dry = hsv_to_rgb(
         rng.uniform(55.0, 70.0, count), rng.uniform(0.2, 0.32, count), rng.uniform(0.42, 0.58, count)
     )
-    dryness = _patchiness(rng, x, y)[:, None]
+    dryness = smooth_field(rng, x, y, offset=(-1.0, 0.5))[:, None]
     grass = (1.0 - dryness) * green + dryness * dry
     return np.where(in_strip[:, None], soil, grass).astype(np.float32)
 

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from canopy_core.simulate.ground import Ground
+from canopy_core.simulate.ground import Ground, smooth_field
 from canopy_core.simulate.mesh import Mesh, SurfaceKind, hsv_to_rgb
 
 __all__ = ["MATERIALS", "GroundPalette", "GroundPatch", "Material", "fallen_leaves", "random_palette"]
@@ -100,16 +100,6 @@ def _paint(rng: np.random.Generator, material: Material, count: int) -> np.ndarr
     return hsv_to_rgb(hsv[:, 0], hsv[:, 1], hsv[:, 2])
 
 
-def _smooth_field(rng: np.random.Generator, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """A smooth field in [0, 1] varying over metres: the share of the sward's second material."""
-    field = np.zeros_like(x) + rng.uniform(-1.0, 1.0)
-    for _ in range(4):
-        direction = rng.uniform(0.0, 2 * np.pi)
-        along = x * np.cos(direction) + y * np.sin(direction)
-        field += np.sin(2 * np.pi * along / rng.uniform(1.0, 4.0) + rng.uniform(0, 2 * np.pi))
-    return 1.0 / (1.0 + np.exp(-2.0 * field))
-
-
 def _patches(rng: np.random.Generator) -> tuple[GroundPatch, ...]:
     patches = []
     for _ in range(int(rng.integers(_PATCHES[0], _PATCHES[1] + 1))):
@@ -153,7 +143,7 @@ def random_palette(rng: np.random.Generator, ground: Ground) -> tuple[GroundPale
         2 * np.pi * x / rng.uniform(0.8, 2.5) + rng.uniform(0, 2 * np.pi)
     )
     in_strip = np.abs(y) < edge_m + rng.normal(0.0, 0.03, count)
-    second = _smooth_field(rng, x, y)[:, None]
+    second = smooth_field(rng, x, y, offset=(-1.0, 1.0))[:, None]
     sward = (1.0 - second) * _paint(rng, MATERIALS[palette.sward[0]], count) + second * _paint(
         rng, MATERIALS[palette.sward[1]], count
     )
