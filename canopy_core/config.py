@@ -22,6 +22,7 @@ __all__ = [
     "MeasureConfig",
     "MetricsConfig",
     "RoiConfig",
+    "WireConfig",
 ]
 
 
@@ -168,6 +169,43 @@ class RoiConfig(_Section):
     )
 
 
+class WireConfig(_Section):
+    """Trellis wires crossing the region of interest, removed from the tree's points (``segment.py``)."""
+
+    tolerance_m: float = Field(
+        0.03,
+        gt=0.0,
+        le=0.2,
+        description="Points within this distance of a wire's fitted line are the wire's: its few "
+        "millimetres, the depth noise along the ray (about 1.3 cm at 4 m in sun) and the views' registration "
+        "(a few mm).",
+    )
+    spread_m: float = Field(
+        0.3,
+        gt=0.0,
+        le=1.0,
+        description="Points at a wire's height (within tolerance_m) up to this far across it are its mixed "
+        "pixels: a wire fills part of a depth pixel, whose reading blends it with what lies behind, so its "
+        "points stand off it along the camera rays, nearly level, each view's to its own side (by up to "
+        "0.25 m in simulated captures).",
+    )
+    max_slope_deg: float = Field(
+        3.0,
+        ge=0.0,
+        lt=45.0,
+        description="A wire is level within this angle (relative to the ground, which a row on a slope "
+        "follows); its sag bends it by about a centimetre over the region of interest.",
+    )
+    min_coverage: float = Field(
+        0.8,
+        gt=0.0,
+        le=1.0,
+        description="Least share of a wire's chord through the region of interest that it covers: where it "
+        "is seen, between its farthest sightings (hidden in a crown), and where something lies along it (the "
+        "crowns it passes through); the rest is out of the cameras' view or lost to dropout.",
+    )
+
+
 class FilterConfig(_Section):
     """Per-view cleaning of the back-projected points (``filters.py``)."""
 
@@ -247,6 +285,19 @@ class MetricsConfig(_Section):
     crown_base_min_radius_m: float = Field(
         0.25, gt=0.0, description="Crown base: points this far from the trunk's axis count as crown."
     )
+    crown_link_m: float = Field(
+        0.1,
+        gt=0.0,
+        description="Foliage and spreading points closer than this form one body; the crown is the largest "
+        "body and those at its height. Ground vegetation, suckers and fallen fruit stand farther below it, "
+        "across the bare trunk.",
+    )
+    trunk_column_radius_m: float = Field(
+        0.1,
+        gt=0.0,
+        description="Foliage this close to the trunk's axis (suckers, bark coloured by the leaves behind it) "
+        "joins the crown only within crown_link_m of it, and never links anything to it (weeds at the foot).",
+    )
     foliage_min_exgr: float = Field(
         0.15, ge=0.0, description="Points whose ExGR vegetation index exceeds this are foliage (crown base)."
     )
@@ -257,6 +308,7 @@ class MeasureConfig(_Section):
 
     balls: BallConfig = Field(default_factory=BallConfig)
     roi: RoiConfig = Field(default_factory=RoiConfig)
+    wires: WireConfig = Field(default_factory=WireConfig)
     filters: FilterConfig = Field(default_factory=FilterConfig)
     ground: GroundConfig = Field(default_factory=GroundConfig)
     icp: IcpConfig = Field(default_factory=IcpConfig)

@@ -35,10 +35,10 @@ from canopy_core.ground import (
     horizontal_distance,
     view_ground_plane,
 )
-from canopy_core.metrics import CanopyMetrics, canopy_metrics
+from canopy_core.metrics import CanopyMetrics, canopy_metrics, crown_candidates, crown_mask
 from canopy_core.refine import IcpRefinement, refine_views
 from canopy_core.register import apply, register_by_balls
-from canopy_core.segment import tree_component
+from canopy_core.segment import find_wires, tree_component, wire_mask
 from canopy_core.spheres import SphereFit
 
 __all__ = [
@@ -345,18 +345,31 @@ def _modes(
     trunk_xy: np.ndarray,
     config: MeasureConfig,
 ) -> dict[str, CanopyMetrics]:
-    """The metrics of each view's tree points alone, and of all views merged (the paper's V1, V2, V1+V2)."""
-    foliage = [foliage_mask(colors, min_index=config.metrics.foliage_min_exgr) for colors in roi_colors]
-    modes: dict[str, CanopyMetrics] = {}
-    for view, points, leafy, mask in zip(capture.views, roi_points, foliage, tree_masks, strict=True):
-        modes[view.name] = _metrics_or_fail(points[mask], leafy[mask], trunk_xy, config, view=view.name)
-    modes[MERGED] = _metrics_or_fail(
-        np.concatenate([points[mask] for points, mask in zip(roi_points, tree_masks, strict=True)]),
-        np.concatenate([leafy[mask] for leafy, mask in zip(foliage, tree_masks, strict=True)]),
+    """The metrics of each view's tree points alone, and of all views merged (the paper's V1, V2, V1+V2).
+
+    The crown is told from ground vegetation, suckers and fallen fruit once, on all views together, where
+    the gaps between them are seen best.
+    """
+    points = [view_points[mask] for view_points, mask in zip(roi_points, tree_masks, strict=True)]
+    foliage = [
+        foliage_mask(colors[mask], min_index=config.metrics.foliage_min_exgr)
+        for colors, mask in zip(roi_colors, tree_masks, strict=True)
+    ]
+    merged, merged_foliage = np.concatenate(points), np.concatenate(foliage)
+    crown = crown_mask(
+        merged,
         trunk_xy,
-        config,
-        view=None,
+        candidates=crown_candidates(
+            merged, trunk_xy, foliage=merged_foliage, min_radius_m=config.metrics.crown_base_min_radius_m
+        ),
+        link_m=config.metrics.crown_link_m,
+        trunk_column_m=config.metrics.trunk_column_radius_m,
     )
+    crowns = np.split(crown, np.cumsum([view_points.shape[0] for view_points in points])[:-1])
+    modes: dict[str, CanopyMetrics] = {}
+    for view, view_points, leafy, view_crown in zip(capture.views, points, foliage, crowns, strict=True):
+        modes[view.name] = _metrics_or_fail(view_points, leafy, view_crown, trunk_xy, config, view=view.name)
+    modes[MERGED] = _metrics_or_fail(merged, merged_foliage, crown, trunk_xy, config, view=None)
     return modes
 
 
@@ -412,9 +425,11 @@ def _roi_cloud(
 def _tree_masks(
     roi_points: list[np.ndarray], balls_world: np.ndarray, trunk_xy: np.ndarray, config: MeasureConfig
 ) -> list[np.ndarray]:
-    """Per view, the points of the tree: above the local ground's clearance, off the balls, not intruders.
+    """Per view, the points of the tree: above the local ground's clearance, off the balls, off the trellis
+    wires, not intruders.
 
-    The ground height map and the intruders are decided on all views together, where both are most complete.
+    The ground height map, the wires and the intruders are decided on all views together, where each is most
+    complete. Wires go first: they join the crown to the posts and the neighbours they pass through.
     """
     ground_map = ground_height_map(
         np.concatenate(roi_points), radius_m=config.roi.radius_m, band_m=config.ground.search_band_m
@@ -425,9 +440,22 @@ def _tree_masks(
         for centre in balls_world:
             mask &= np.linalg.norm(points - centre, axis=1) > config.balls.radius_m * 1.5 + 0.02
         masks.append(mask)
-    candidates = np.concatenate([points[mask] for points, mask in zip(roi_points, masks, strict=True)])
-    connected = tree_component(
-        candidates, trunk_xy, roi_radius_m=config.roi.radius_m, link_m=config.roi.link_m
+    per_view = [points[mask] for points, mask in zip(roi_points, masks, strict=True)]
+    candidates = np.concatenate(per_view)
+    wires = find_wires(
+        per_view,
+        roi_radius_m=config.roi.radius_m,
+        tolerance_m=config.wires.tolerance_m,
+        spread_m=config.wires.spread_m,
+        max_slope_deg=config.wires.max_slope_deg,
+        min_coverage=config.wires.min_coverage,
+    )
+    off_wires = ~wire_mask(
+        candidates, wires, tolerance_m=config.wires.tolerance_m, spread_m=config.wires.spread_m
+    )
+    connected = np.zeros(candidates.shape[0], dtype=bool)
+    connected[off_wires] = tree_component(
+        candidates[off_wires], trunk_xy, roi_radius_m=config.roi.radius_m, link_m=config.roi.link_m
     )
     splits = np.cumsum([np.count_nonzero(mask) for mask in masks])[:-1]
     for mask, keep in zip(masks, np.split(connected, splits), strict=True):
@@ -436,7 +464,13 @@ def _tree_masks(
 
 
 def _metrics_or_fail(
-    points: np.ndarray, foliage: np.ndarray, trunk_xy: np.ndarray, config: MeasureConfig, *, view: str | None
+    points: np.ndarray,
+    foliage: np.ndarray,
+    crown: np.ndarray,
+    trunk_xy: np.ndarray,
+    config: MeasureConfig,
+    *,
+    view: str | None,
 ) -> CanopyMetrics:
     if points.shape[0] < 50:
         raise MeasurementError(
@@ -444,4 +478,4 @@ def _metrics_or_fail(
             view=view,
             hint="check that the tree stands among the balls and inside roi.radius_m",
         )
-    return canopy_metrics(points, trunk_xy_m=trunk_xy, foliage=foliage, config=config.metrics)
+    return canopy_metrics(points, trunk_xy_m=trunk_xy, foliage=foliage, crown=crown, config=config.metrics)

@@ -4,6 +4,11 @@ The paper's three (Yang et al. 2019): height H (eq. 5), maximum canopy width W (
 D from a kernel density of the points' heights (eqs. 7-8); and beyond it: a geometric crown base, crown
 volume (convex hull and occupied voxels), projected crown area and the crown diameters along and across
 the row. Every function takes the tree's points and nothing else it could get wrong.
+
+The crown is told from what else stands on the ground by geometry (:func:`crown_mask`): weeds, tall grass
+and suckers at the trunk's foot are green and joined to the trunk, and fallen fruit lies apart from it, but
+all of them are separated from the crown by the bare trunk; so the crown base is the lowest point of the
+crown, not of the lowest green thing, and none of them counts in H, W or the volumes.
 """
 
 from __future__ import annotations
@@ -11,6 +16,8 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from canopy_core.config import MetricsConfig
@@ -21,7 +28,9 @@ __all__ = [
     "canopy_metrics",
     "crown_base_geometric",
     "crown_base_kde",
+    "crown_candidates",
     "crown_diameters",
+    "crown_mask",
     "height_density",
     "hull_volume",
     "max_horizontal_distance",
@@ -31,6 +40,12 @@ __all__ = [
 
 _TOP_BATCH = 256
 """Candidates for the robust top are checked this many at a time, highest first."""
+_CROWN_VOXEL_M = 0.04
+"""Voxel edge of the crown's grouping into bodies: well below the link distance, so that gaps are measured
+to a few centimetres; coarse enough that grouping a tree's tens of thousands of points is fast."""
+_CROWN_SHARE_ABOVE = 0.5
+"""A body is part of the crown when at least this share of its height lies above the crown's main body's
+lowest point: a piece of the crown does; a weed, sucker or fallen apple reaching up to it does not."""
 
 
 @dataclass(frozen=True)
@@ -128,25 +143,107 @@ def crown_base_kde(z_m: np.ndarray, *, height_m: float, bandwidth_m: float, thre
     return float(grid[above[0]]) if above.size else float(z_m.min())
 
 
-def crown_base_geometric(
+def crown_candidates(
+    points_m: np.ndarray, trunk_xy_m: np.ndarray, *, foliage: np.ndarray | None = None, min_radius_m: float
+) -> np.ndarray:
+    """Mask of the points that may be crown: foliage, or anything spreading away from the trunk.
+
+    A point is a candidate when its colour is foliage (``foliage`` mask, see :mod:`canopy_core.foliage`) or
+    when it lies farther than ``min_radius_m`` from the trunk's axis (branches and leaves spread out; the
+    trunk does not), which also serves points without colour. Ground vegetation, suckers and fallen fruit
+    are candidates too: :func:`crown_mask` tells them from the crown.
+    """
+    candidates = np.linalg.norm(points_m[:, :2] - trunk_xy_m, axis=1) > min_radius_m
+    if foliage is not None:
+        candidates |= foliage
+    return candidates
+
+
+def crown_mask(
     points_m: np.ndarray,
     trunk_xy_m: np.ndarray,
     *,
-    foliage: np.ndarray | None = None,
-    min_radius_m: float,
-    support_radius_m: float,
-    support_points: int,
-) -> float:
-    """Crown base: the lowest supported point of foliage, or of anything spreading away from the trunk.
+    candidates: np.ndarray,
+    link_m: float,
+    trunk_column_m: float,
+) -> np.ndarray:
+    """Mask of the crown's points among the ``candidates`` (see :func:`crown_candidates`).
 
-    A point is crown when its colour is foliage (``foliage`` mask, see :mod:`canopy_core.foliage`) or
-    when it lies farther than ``min_radius_m`` from the trunk's axis (branches and leaves spread out; the
-    trunk does not), which also serves points without colour. It counts only with ``support_points``
-    neighbours within ``support_radius_m``, so no stray point sets the base.
+    The candidates outside the trunk's column are grouped into bodies separated by gaps wider than
+    ``link_m`` (on occupied voxels). The crown is the largest body and every body at its height, that is
+    with at least half of its own height above the largest body's lowest point: pieces of the crown apart
+    from the rest (a sparse cluster, the top leaves) are; ground vegetation, suckers, fallen fruit and stray
+    points below the crown, which the bare trunk separates from it, are not, even where they reach up to
+    its lowest leaves. Candidates inside the column (within ``trunk_column_m`` of the trunk's axis: suckers,
+    leaves next to the trunk, bark coloured by the leaves behind it) join the crown when they are within
+    ``link_m`` of it, but never link anything to it: not what grows at the trunk's foot, not each other up
+    the trunk. With no candidate outside the column, the crown is all the candidates.
+
+    Parameters
+    ----------
+    points_m
+        ``(N, 3)`` tree points in the world frame.
+    trunk_xy_m
+        The trunk's horizontal position.
+    candidates
+        Boolean mask over ``points_m`` of the points that may be crown.
+    link_m
+        Candidates closer than this belong to one body.
+    trunk_column_m
+        Radius of the trunk's column round its axis.
+
+    Returns
+    -------
+    numpy.ndarray
+        Boolean mask over ``points_m``.
     """
-    crown = np.linalg.norm(points_m[:, :2] - trunk_xy_m, axis=1) > min_radius_m
-    if foliage is not None:
-        crown |= foliage
+    radial = np.linalg.norm(points_m[:, :2] - trunk_xy_m, axis=1)
+    in_column = radial <= trunk_column_m
+    grouped = np.flatnonzero(candidates & ~in_column)
+    if grouped.size == 0:
+        return candidates.copy()
+    labels, voxels = _bodies(points_m[grouped], link_m=link_m)
+    z = points_m[grouped, 2]
+    order = np.lexsort((z, labels))
+    starts = np.flatnonzero(np.r_[True, np.diff(labels[order]) != 0])
+    bottom = z[order[starts]]
+    top = z[order[np.r_[starts[1:], order.size] - 1]]
+    lowest = bottom[int(np.argmax(voxels))]
+    at_crown_height = top - np.maximum(bottom, lowest) >= _CROWN_SHARE_ABOVE * (top - bottom)
+    crown = np.zeros(points_m.shape[0], dtype=bool)
+    crown[grouped] = at_crown_height[labels]
+    column = np.flatnonzero(candidates & in_column)
+    near_column = crown & (radial <= trunk_column_m + link_m)
+    if column.size and near_column.any():
+        distance, _ = cKDTree(points_m[near_column]).query(points_m[column], distance_upper_bound=link_m)
+        crown[column[np.isfinite(distance)]] = True
+    return crown
+
+
+def _bodies(points_m: np.ndarray, *, link_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """Each point's body (points joined through occupied voxels closer than ``link_m``), and each body's
+    number of voxels."""
+    keys = np.floor(points_m / _CROWN_VOXEL_M).astype(np.int64)
+    keys -= keys.min(axis=0)
+    span = keys.max(axis=0) + 1
+    cells, voxel = np.unique((keys[:, 0] * span[1] + keys[:, 1]) * span[2] + keys[:, 2], return_inverse=True)
+    centres = np.column_stack(np.unravel_index(cells, tuple(span))) * _CROWN_VOXEL_M
+    pairs = cKDTree(centres).query_pairs(r=link_m, output_type="ndarray")
+    graph = coo_matrix(
+        (np.ones(pairs.shape[0], dtype=np.int8), (pairs[:, 0], pairs[:, 1])), shape=(cells.size, cells.size)
+    )
+    count, labels = connected_components(graph, directed=False)
+    return labels[voxel.ravel()], np.bincount(labels, minlength=count)
+
+
+def crown_base_geometric(
+    points_m: np.ndarray, crown: np.ndarray, *, support_radius_m: float, support_points: int
+) -> float:
+    """Crown base: the lowest supported point of the crown (``crown`` mask, see :func:`crown_mask`).
+
+    A point counts only with ``support_points`` crown neighbours within ``support_radius_m``, so no stray
+    point sets the base. Without crown points, the lowest point.
+    """
     candidates = points_m[crown]
     if candidates.shape[0] == 0:
         return float(points_m[:, 2].min())
@@ -186,40 +283,60 @@ def voxel_volume(points_m: np.ndarray, *, voxel_m: float) -> float:
 
 
 def canopy_metrics(
-    points_m: np.ndarray, *, trunk_xy_m: np.ndarray, foliage: np.ndarray | None = None, config: MetricsConfig
+    points_m: np.ndarray,
+    *,
+    trunk_xy_m: np.ndarray,
+    foliage: np.ndarray | None = None,
+    crown: np.ndarray | None = None,
+    config: MetricsConfig,
 ) -> CanopyMetrics:
     """All metrics of one tree cloud in the world frame; ``foliage`` marks the points coloured as leaves.
 
+    The tree measured is its crown (``crown``, a mask decided already, e.g. on more views together; else
+    :func:`crown_mask` of these points) and its trunk: the crown candidates apart from the crown (ground
+    vegetation, suckers, fallen fruit, stray points below the crown) are left out of every metric.
     ``thickness_m`` and ``crown_base_m`` are the geometric estimates (the more accurate on trees with a
-    clear trunk); ``thickness_kde_m`` and ``crown_base_kde_m`` follow the paper's eqs. 7-8.
+    clear trunk); ``thickness_kde_m`` and ``crown_base_kde_m`` follow the paper's eqs. 7-8. ``points``
+    counts the points given.
     """
+    candidates = crown_candidates(
+        points_m, trunk_xy_m, foliage=foliage, min_radius_m=config.crown_base_min_radius_m
+    )
+    if crown is None:
+        crown = crown_mask(
+            points_m,
+            trunk_xy_m,
+            candidates=candidates,
+            link_m=config.crown_link_m,
+            trunk_column_m=config.trunk_column_radius_m,
+        )
+    kept = crown | ~candidates
+    tree_points = points_m[kept]
     height = canopy_height(
-        points_m, support_radius_m=config.support_radius_m, support_points=config.top_support_points
+        tree_points, support_radius_m=config.support_radius_m, support_points=config.top_support_points
     )
     base_kde = crown_base_kde(
-        points_m[:, 2], height_m=height, bandwidth_m=config.kde_bandwidth_m, threshold=config.kde_threshold
+        tree_points[:, 2], height_m=height, bandwidth_m=config.kde_bandwidth_m, threshold=config.kde_threshold
     )
     base_geometric = crown_base_geometric(
-        points_m,
-        trunk_xy_m,
-        foliage=foliage,
-        min_radius_m=config.crown_base_min_radius_m,
+        tree_points,
+        crown[kept],
         support_radius_m=config.support_radius_m,
         support_points=config.base_support_points,
     )
-    crown = points_m[points_m[:, 2] >= base_geometric]
-    along, across = crown_diameters(crown)
+    upper = tree_points[tree_points[:, 2] >= base_geometric]
+    along, across = crown_diameters(upper)
     return CanopyMetrics(
         height_m=height,
-        width_m=max_horizontal_distance(points_m),
+        width_m=max_horizontal_distance(tree_points),
         thickness_m=height - base_geometric,
         crown_base_m=base_geometric,
         thickness_kde_m=height - base_kde,
         crown_base_kde_m=base_kde,
         diameter_along_row_m=along,
         diameter_across_row_m=across,
-        projected_area_m2=projected_area(crown),
-        volume_hull_m3=hull_volume(crown),
-        volume_voxel_m3=voxel_volume(crown, voxel_m=config.voxel_volume_m),
+        projected_area_m2=projected_area(upper),
+        volume_hull_m3=hull_volume(upper),
+        volume_voxel_m3=voxel_volume(upper, voxel_m=config.voxel_volume_m),
         points=int(points_m.shape[0]),
     )

@@ -1,22 +1,38 @@
 """Separating the measured tree from whatever else stands in the region of interest.
 
 A cylinder around the balls holds the tree, but also what reaches into it from outside: a neighbour's
-crown, a trellis post. Such intruders enter through the cylinder's wall and are separated from the tree by
-a gap. The tree itself need not be one connected body in the data: thin scaffold branches hidden by leaves
-leave its crown floating above its trunk. So the points are grouped into bodies separated by gaps wider
-than ``link_m`` (on occupied voxels: fast, and indifferent to point density), and a body is dropped only
-when it touches the wall and is neither joined to the trunk nor a large part of what is in the cylinder,
-or when it is a speck of a few voxels.
+crown, a trellis post, the trellis wires. Such intruders enter through the cylinder's wall.
+
+Wires (:func:`find_wires`) are found first, because they join everything they pass through: a wire runs
+along the row through the trunk line, so through the crown, and on to the posts and the neighbours. Each
+view shows it as a sparse, straight, nearly level line of points, a little off the other views' (mixed
+pixels, see :func:`wire_mask`), that crosses the whole cylinder, hidden where it runs through the crown;
+a branch is thicker, and ends inside the crown. So the first wire is sought by a Hough transform over
+level lines (direction, offset, height) among the points whose neighbourhood, in one view, is a thin line
+(local principal components); the trellis's other wires run beside it, so they are sought parallel to it,
+among all the points with a sparse neighbourhood. A line is a wire when it is nearly level, seen over a length
+that leaves and twigs never line up over, and crosses the cylinder: its own points and what hides it
+cover most of its chord. Its points are then removed along its whole length, inside the crown too.
+
+The other intruders are separated from the tree by a gap. The tree itself need not be one connected body
+in the data: thin scaffold branches hidden by leaves leave its crown floating above its trunk. So the
+points are grouped into bodies separated by gaps wider than ``link_m`` (on occupied voxels: fast, and
+indifferent to point density), and a body is dropped only when it touches the wall and is neither joined
+to the trunk nor a large part of what is in the cylinder, or when it is a speck of a few voxels
+(:func:`tree_component`).
 """
 
 from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-__all__ = ["tree_component"]
+__all__ = ["Wire", "find_wires", "tree_component", "wire_mask"]
 
 _TRUNK_SEED_RADIUS_M = 0.35
 """Voxels this close to the trunk's axis, in the lowest part of the cloud, belong to the tree's trunk."""
@@ -26,6 +42,66 @@ _WALL_BAND_M = 0.1
 _LARGE_SHARE = 0.25
 """A body holding this share of the voxels is (part of) the tree even if it reaches the wall."""
 _SPECK_VOXELS = 4
+
+_WIRE_NEIGHBOURHOOD_M = 0.1
+"""Radius of the neighbourhood whose shape tells a line: ten times a wire's thickness with its noise, so a
+wire's neighbourhood is a thin line; a few times a leaf's size, so a leaf's is not."""
+_WIRE_OPEN_SPAN_M = 0.3
+"""A wire is seen over at least this length (beside the crown, or in the gap of at least 0.3 m between two
+crowns of a row); no leaf or twig lies straight over as much."""
+_FIRST_WIRE_SEEN = 0.2
+"""The first wire, sought in any direction, is seen as a thin line in at least this share of its chord
+through the cylinder, wherever no crown hides it; leaves at a crown's edge line up by chance in a few
+short stretches (at most 17 % of a chord in 109 simulated captures, 56 of them without wires; the first
+wire of a trellis was seen in 20-90 %). The trellis's other wires, sought parallel to it, may be
+hidden more."""
+_WIRE_WALL_M = 0.2
+"""A wire enters and leaves the cylinder through its wall, where it is seen within this distance of both
+ends of its chord (twice the wall band: dropout leaves gaps in a sparse line). Leaves at a crown's edge
+never line up with both ends (none of the candidate lines in the same 109 captures did)."""
+_WIRE_SEEN_ALONE = 0.5
+"""A line seen in this share of its chord is a wire whatever the rest of the chord holds: part of a wire
+above a tall crown is out of the cameras' view."""
+_WIRE_BIN_M = 0.1
+"""Length of the stretches of a line's chord whose occupation measures how much of it is covered."""
+_FIRST_WIRE_TRIES = 3
+"""Most lines tried for the first wire: it is the most evident line, or nearly (the first or second tried in
+50 simulated captures with wires); lines after those are leaves lining up by chance."""
+_WIRE_MAX_LINES = 10
+"""Most candidate lines examined: orchards string two to five wires, and each rejected candidate line
+takes its points out of the search."""
+
+
+@dataclass(frozen=True, eq=False)
+class Wire:
+    """A trellis wire in the world frame: a straight line in plan, its height sloping evenly along it.
+
+    ``origin_xy_m`` is a point of the line in plan and ``direction_xy`` its unit direction; the wire's
+    height at signed distance s from the origin along the direction is ``height_m + slope * s``. A wire's
+    sag curves it by about a centimetre over the region of interest (a few centimetres over spans of metres
+    between posts), which the tolerance absorbs.
+    """
+
+    origin_xy_m: np.ndarray
+    direction_xy: np.ndarray
+    height_m: float
+    slope: float
+
+    def offsets_m(self, points_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Each ``(N, 3)`` point's horizontal offset across the wire, and its height above the wire."""
+        offset = points_m[:, :2] - self.origin_xy_m
+        along = offset @ self.direction_xy
+        across = offset @ np.array([-self.direction_xy[1], self.direction_xy[0]])
+        return across, points_m[:, 2] - (self.height_m + self.slope * along)
+
+    def distance_m(self, points_m: np.ndarray) -> np.ndarray:
+        """Distance of each ``(N, 3)`` point from the wire."""
+        return np.hypot(*self.offsets_m(points_m))
+
+    def chord(self, roi_radius_m: float) -> tuple[float, float] | None:
+        """Where the wire enters and leaves the cylinder of ``roi_radius_m`` round the z axis, as distances
+        along it from its origin; None when it misses the cylinder."""
+        return _chord(self.origin_xy_m, self.direction_xy, roi_radius_m)
 
 
 def tree_component(
@@ -77,3 +153,313 @@ def tree_component(
     keep = (trunk | large | ~at_wall) & (sizes > _SPECK_VOXELS)
     keep |= trunk
     return keep[labels][point_cell.ravel()]
+
+
+def find_wires(
+    views_m: Sequence[np.ndarray],
+    *,
+    roi_radius_m: float,
+    tolerance_m: float,
+    spread_m: float,
+    max_slope_deg: float,
+    min_coverage: float,
+) -> list[Wire]:
+    """The trellis wires crossing the region of interest.
+
+    Parameters
+    ----------
+    views_m
+        Each view's ``(N, 3)`` points in the world frame inside the vertical cylinder of radius
+        ``roi_radius_m`` round the z axis, ground removed. Thin lines are sought in each view alone: each
+        view sees a wire as one line, but the views' lines stand apart by their mixed pixels (see
+        :func:`wire_mask`), and two lines side by side are not thin.
+    roi_radius_m
+        The cylinder's radius.
+    tolerance_m
+        A wire's points lie within this distance of its line (its thickness, the depth noise, the views'
+        registration); also the edge of the cells the points are thinned to.
+    spread_m
+        How far across a wire, at its height, its mixed pixels lie (see :func:`wire_mask`); once a wire is
+        found, they are not searched again.
+    max_slope_deg
+        A wire is level within this angle everywhere inside the cylinder (its slope and its sag).
+    min_coverage
+        Share of the wire's chord through the cylinder that its own points and what hides it (the crowns
+        it passes through) cover; the rest is out of view or lost to dropout.
+
+    Returns
+    -------
+    list[Wire]
+        The wires found, the most evident first.
+    """
+    views = [_cell_centroids(points, tolerance_m) for points in views_m if points.shape[0] >= 2]
+    if not views:
+        return []
+    cells = np.concatenate(views)
+    line_cells = [_line_cells(view, tolerance_m) for view in views]
+    sparse_pool = cells[np.concatenate([sparse for sparse, _ in line_cells])]
+    thin_pool = cells[np.concatenate([thin for _, thin in line_cells])]
+    max_slope = float(np.tan(np.radians(max_slope_deg)))
+    wires: list[Wire] = []
+    for tried in range(_WIRE_MAX_LINES):
+        # The first wire is sought among thin lines in any direction; the trellis's other wires run beside
+        # it, so they are sought parallel to it, also where they are seen too briefly to look thin.
+        first = wires[0] if wires else None
+        if first is None and tried == _FIRST_WIRE_TRIES:
+            break
+        pool = thin_pool if first is None else sparse_pool
+        members = (
+            _best_line(pool, tolerance_m=tolerance_m, roi_radius_m=roi_radius_m)
+            if first is None
+            else _best_parallel_line(pool, first, tolerance_m=tolerance_m)
+        )
+        if members is None:
+            break
+        wire, members = _fit_wire(
+            pool,
+            members,
+            roi_radius_m=roi_radius_m,
+            tolerance_m=tolerance_m,
+            direction_xy=None if first is None else first.direction_xy,
+        )
+        if wire is not None and _crosses_as_wire(
+            wire,
+            pool[members],
+            cells,
+            roi_radius_m=roi_radius_m,
+            max_slope=max_slope,
+            min_coverage=min_coverage,
+            parallel=first is not None,
+        ):
+            wires.append(wire)
+            thin_pool = thin_pool[~wire_mask(thin_pool, [wire], tolerance_m=tolerance_m, spread_m=spread_m)]
+            sparse_pool = sparse_pool[
+                ~wire_mask(sparse_pool, [wire], tolerance_m=tolerance_m, spread_m=spread_m)
+            ]
+        elif first is None:
+            thin_pool = thin_pool[~members]
+        else:
+            sparse_pool = sparse_pool[~members]
+    return wires
+
+
+def wire_mask(points_m: np.ndarray, wires: list[Wire], *, tolerance_m: float, spread_m: float) -> np.ndarray:
+    """Mask of the ``(N, 3)`` points of any of ``wires``: within ``tolerance_m`` of its height and
+    ``spread_m`` across it.
+
+    A wire is thinner than a depth pixel, so every pixel that sees it blends its depth with what lies
+    behind: its points stand off the wire along the camera's rays, which cross it nearly level, so they
+    keep its height but spread across it, each view's the other way.
+    """
+    on_wire = np.zeros(points_m.shape[0], dtype=bool)
+    for wire in wires:
+        across, rise = wire.offsets_m(points_m)
+        on_wire |= (np.abs(rise) < tolerance_m) & (np.abs(across) < spread_m)
+    return on_wire
+
+
+def _chord(origin_xy: np.ndarray, direction_xy: np.ndarray, radius_m: float) -> tuple[float, float] | None:
+    """Where the level line through ``origin_xy`` along unit ``direction_xy`` enters and leaves the
+    cylinder of ``radius_m`` round the z axis (distances along it from ``origin_xy``); None if it misses."""
+    offset = float(origin_xy @ np.array([-direction_xy[1], direction_xy[0]]))
+    if abs(offset) >= radius_m:
+        return None
+    middle = -float(origin_xy @ direction_xy)
+    half = float(np.sqrt(radius_m**2 - offset**2))
+    return middle - half, middle + half
+
+
+def _cell_centroids(points_m: np.ndarray, cell_m: float) -> np.ndarray:
+    """The centroids of the points in each occupied cubic cell of edge ``cell_m``."""
+    keys = np.floor(points_m / cell_m).astype(np.int64)
+    keys -= keys.min(axis=0)
+    span = keys.max(axis=0) + 1
+    flat = (keys[:, 0] * span[1] + keys[:, 1]) * span[2] + keys[:, 2]
+    _, cell, counts = np.unique(flat, return_inverse=True, return_counts=True)
+    cell = cell.ravel()
+    sums = np.column_stack(
+        [np.bincount(cell, weights=points_m[:, k], minlength=counts.size) for k in range(3)]
+    )
+    return sums / counts[:, None]
+
+
+def _line_cells(cells_m: np.ndarray, tolerance_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """Masks of the sparse cells, whose neighbourhood holds no more cells than a line's, and among them of
+    the thin-line cells, whose neighbourhood is a thin straight line: spread along one direction over at
+    least the neighbourhood's radius and across it by less than half the tolerance.
+
+    Cells have an edge of ``tolerance_m``, so a line crosses at most ``2 r / tolerance_m + 1`` cells of a
+    neighbourhood of radius r; twice as many allows for a noisy line's straddling cell boundaries. A
+    neighbourhood holding more is part of a surface or a volume.
+    """
+    radius = _WIRE_NEIGHBOURHOOD_M
+    most = int(np.ceil(2 * (2 * radius / tolerance_m + 1)))
+    distances, neighbours = cKDTree(cells_m).query(
+        cells_m, k=most + 1, distance_upper_bound=radius, workers=-1
+    )
+    found = np.isfinite(distances)
+    count = found.sum(axis=1)
+    sparse = count <= most
+    examined = np.flatnonzero(sparse & (count >= 3))
+    found = found[examined]
+    padded = np.vstack([cells_m, np.zeros((1, 3))])
+    around = padded[np.where(found, neighbours[examined], cells_m.shape[0])]
+    weight = found[..., None].astype(float)
+    mean = (around * weight).sum(axis=1) / count[examined, None]
+    deviation = (around - mean[:, None, :]) * weight
+    variances = np.linalg.eigvalsh(
+        np.einsum("cki,ckj->cij", deviation, deviation) / count[examined, None, None]
+    )
+    thin = np.zeros(cells_m.shape[0], dtype=bool)
+    # Across: within half the tolerance. Along: a line through the neighbourhood's centre at least its
+    # radius long (a uniform spread over a length L has variance L^2 / 12).
+    thin[examined] = (variances[:, 1] <= (tolerance_m / 2) ** 2) & (variances[:, 2] >= radius**2 / 12)
+    return sparse, thin
+
+
+def _best_line(pool_m: np.ndarray, *, tolerance_m: float, roi_radius_m: float) -> np.ndarray | None:
+    """Mask over ``pool_m`` of the points of the best level line in any direction: a Hough transform over
+    the lines' direction in plan (in steps that turn a line by at most ``tolerance_m`` within the cylinder
+    of ``roi_radius_m``), offset and height (in steps of ``tolerance_m``), each line scored by the length
+    it covers (stretches of :data:`_WIRE_BIN_M` holding a point); None when no line covers
+    :data:`_WIRE_OPEN_SPAN_M`. Every wire of a trellis votes for the same direction."""
+    if pool_m.shape[0] == 0:
+        return None
+    angles = np.arange(0.0, np.pi, tolerance_m / roi_radius_m)
+    directions = np.column_stack([np.cos(angles), np.sin(angles)])
+    along = pool_m[:, :2] @ directions.T
+    across = pool_m[:, :2] @ np.column_stack([-directions[:, 1], directions[:, 0]]).T
+    line = np.stack(
+        [
+            np.broadcast_to(np.arange(angles.size), along.shape),
+            np.floor(across / tolerance_m).astype(np.int64),
+            np.broadcast_to(np.floor(pool_m[:, 2:] / tolerance_m).astype(np.int64), along.shape),
+        ]
+    ).reshape(3, -1)
+    stretch = np.floor(along / _WIRE_BIN_M).astype(np.int64).ravel()
+    keys, line_of_key = np.unique(
+        np.ravel_multi_index(tuple(line - line.min(axis=1, keepdims=True)), tuple(np.ptp(line, axis=1) + 1)),
+        return_inverse=True,
+    )
+    covered = np.unique(line_of_key.ravel() * (int(np.ptp(stretch)) + 1) + stretch - stretch.min())
+    score = np.bincount(covered // (int(np.ptp(stretch)) + 1), minlength=keys.size)
+    best = int(np.argmax(score))
+    if score[best] * _WIRE_BIN_M < _WIRE_OPEN_SPAN_M:
+        return None
+    chosen = np.flatnonzero(line_of_key.ravel() == best)
+    angle = int(chosen[0] % angles.size)
+    points = chosen // angles.size
+    direction = np.append(directions[angle], 0.0)
+    centre = pool_m[points].mean(axis=0)
+    offset = pool_m - centre
+    return np.linalg.norm(offset - np.outer(offset @ direction, direction), axis=1) < tolerance_m
+
+
+def _best_parallel_line(pool_m: np.ndarray, parallel_to: Wire, *, tolerance_m: float) -> np.ndarray | None:
+    """Mask over ``pool_m`` of the points of the best line parallel to ``parallel_to`` (in plan and in
+    slope): a Hough transform over the lines' offset across it and height, in steps of ``tolerance_m``,
+    each scored by the length it covers (stretches of :data:`_WIRE_BIN_M` holding a point); None when no
+    line covers :data:`_WIRE_OPEN_SPAN_M`."""
+    if pool_m.shape[0] == 0:
+        return None
+    across, rise = parallel_to.offsets_m(pool_m)
+    along = (pool_m[:, :2] - parallel_to.origin_xy_m) @ parallel_to.direction_xy
+    line = np.floor(np.column_stack([across, rise]) / tolerance_m).astype(np.int64)
+    line -= line.min(axis=0)
+    line_key = line[:, 0] * (int(line[:, 1].max()) + 1) + line[:, 1]
+    stretch = np.floor(along / _WIRE_BIN_M).astype(np.int64)
+    stretch -= stretch.min()
+    covered = np.unique(line_key * (int(stretch.max()) + 1) + stretch) // (int(stretch.max()) + 1)
+    keys, score = np.unique(covered, return_counts=True)
+    if score.max() * _WIRE_BIN_M < _WIRE_OPEN_SPAN_M:
+        return None
+    chosen = line_key == keys[np.argmax(score)]
+    centre = np.array([np.mean(across[chosen]), np.mean(rise[chosen])])
+    return np.hypot(across - centre[0], rise - centre[1]) < tolerance_m
+
+
+def _fit_wire(
+    pool_m: np.ndarray,
+    members: np.ndarray,
+    *,
+    roi_radius_m: float,
+    tolerance_m: float,
+    direction_xy: np.ndarray | None,
+) -> tuple[Wire | None, np.ndarray]:
+    """A wire fitted to the ``members`` of ``pool_m`` (along ``direction_xy`` when given), refitted to
+    the pool's points within ``tolerance_m``; and those points. None when fewer than three points remain or
+    the line misses the cylinder."""
+    wire = None
+    for _ in range(2):
+        points = pool_m[members]
+        if points.shape[0] < 3:
+            return None, members
+        origin = points[:, :2].mean(axis=0)
+        direction = (
+            direction_xy
+            if direction_xy is not None
+            else np.linalg.svd(points[:, :2] - origin, full_matrices=False)[2][0]
+        )
+        if _chord(origin, direction, roi_radius_m) is None:
+            return None, members
+        along = (points[:, :2] - origin) @ direction
+        slope, height = np.polyfit(along, points[:, 2], 1)
+        wire = Wire(origin, direction, float(height), float(slope))
+        members = wire.distance_m(pool_m) < tolerance_m
+    return wire, members
+
+
+def _crosses_as_wire(
+    wire: Wire,
+    seen_m: np.ndarray,
+    cells_m: np.ndarray,
+    *,
+    roi_radius_m: float,
+    max_slope: float,
+    min_coverage: float,
+    parallel: bool,
+) -> bool:
+    """Whether ``wire`` is one: level within ``max_slope``, seen (``seen_m``, its points in the search
+    pool) over :data:`_WIRE_OPEN_SPAN_M`, and either seen in :data:`_WIRE_SEEN_ALONE` of its chord
+    through the cylinder or crossing the cylinder.
+
+    It crosses when it covers ``min_coverage`` of its chord: the stretch between the farthest points where
+    it is seen (within it, a crown may hide it from every view: an open vase's shell hides its hollow
+    centre), and beyond them the stretches where something lies along it, within the neighbourhood radius:
+    the crown or a neighbour hiding it. What is left may be out of the cameras' view (a wire above a tall
+    crown) or lost to dropout. The first wire, sought in any direction, must also be seen where it crosses
+    the cylinder's wall, within :data:`_WIRE_WALL_M` of both ends of its chord, or in
+    :data:`_FIRST_WIRE_SEEN` of its chord; wires sought ``parallel`` to it need not.
+    """
+    chord = wire.chord(roi_radius_m)
+    if chord is None or abs(wire.slope) > max_slope:
+        return False
+    start, end = chord
+    seen = (seen_m[:, :2] - wire.origin_xy_m) @ wire.direction_xy
+    seen_stretches = _stretches_holding(seen, start, end)
+    if np.ptp(seen) < _WIRE_OPEN_SPAN_M:
+        return False
+    if seen_stretches.mean() >= _WIRE_SEEN_ALONE:
+        return True
+    at_wall = int(np.ceil(_WIRE_WALL_M / _WIRE_BIN_M))
+    seen_at_both_walls = bool(seen_stretches[:at_wall].any() and seen_stretches[-at_wall:].any())
+    if not (parallel or seen_at_both_walls or seen_stretches.mean() >= _FIRST_WIRE_SEEN):
+        return False
+    along = (
+        cells_m[wire.distance_m(cells_m) < _WIRE_NEIGHBOURHOOD_M, :2] - wire.origin_xy_m
+    ) @ wire.direction_xy
+    covered = _stretches_holding(along, start, end)
+    held = np.flatnonzero(seen_stretches)
+    if held.size:
+        covered[held.min() : held.max() + 1] = True
+    return bool(covered.mean() >= min_coverage)
+
+
+def _stretches_holding(along_m: np.ndarray, start_m: float, end_m: float) -> np.ndarray:
+    """Which stretches of :data:`_WIRE_BIN_M` from ``start_m`` to ``end_m`` hold one of the positions
+    ``along_m``."""
+    stretches = max(1, int(np.ceil((end_m - start_m) / _WIRE_BIN_M)))
+    inside = along_m[(along_m >= start_m) & (along_m < end_m)]
+    held = np.zeros(stretches, dtype=bool)
+    held[np.minimum(((inside - start_m) / _WIRE_BIN_M).astype(np.int64), stretches - 1)] = True
+    return held

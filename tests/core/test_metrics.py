@@ -8,11 +8,15 @@ import numpy as np
 import pytest
 
 from canopy_core.config import MetricsConfig
+from canopy_core.foliage import foliage_mask
 from canopy_core.metrics import (
+    CanopyMetrics,
     canopy_height,
     canopy_metrics,
     crown_base_geometric,
     crown_base_kde,
+    crown_candidates,
+    crown_mask,
     hull_volume,
     max_horizontal_distance,
     projected_area,
@@ -76,7 +80,8 @@ def test_kde_threshold_is_unit_independent() -> None:
 
 def test_geometric_crown_base_is_lowest_point_away_from_trunk() -> None:
     tree = _tree(np.random.default_rng(5))
-    base = crown_base_geometric(tree, np.zeros(2), min_radius_m=0.25, support_radius_m=0.05, support_points=4)
+    crown = _crown(tree, np.zeros(len(tree), dtype=bool))
+    base = crown_base_geometric(tree, crown, support_radius_m=0.05, support_points=4)
     expected = tree[np.linalg.norm(tree[:, :2], axis=1) > 0.25, 2].min()
     assert base == pytest.approx(expected, abs=0.03)
 
@@ -99,3 +104,132 @@ def test_canopy_metrics_reports_paper_and_extra_metrics_consistently() -> None:
     assert metrics.diameter_across_row_m == pytest.approx(1.2, abs=0.03)
     assert metrics.volume_voxel_m3 > 0 and 0 < metrics.volume_hull_m3 < 4 / 3 * np.pi * 0.8 * 0.6 * 1.0
     assert metrics.points == tree.shape[0]
+
+
+# What stands on the ground beside the tree: weeds, grass and suckers at the trunk's foot (green, joined to
+# the trunk), fallen apples, flying pixels. A tree whose crown starts at 1.06 m above a bare trunk.
+
+BARK, LEAF, WEED, APPLE = (95, 75, 55), (60, 125, 45), (80, 140, 50), (190, 40, 35)
+CROWN_BASE_M = 1.06
+CROWN_POINTS = 20000
+
+
+def _crown(points: np.ndarray, foliage: np.ndarray) -> np.ndarray:
+    config = MetricsConfig()
+    candidates = crown_candidates(
+        points, np.zeros(2), foliage=foliage, min_radius_m=config.crown_base_min_radius_m
+    )
+    return crown_mask(
+        points,
+        np.zeros(2),
+        candidates=candidates,
+        link_m=config.crown_link_m,
+        trunk_column_m=config.trunk_column_radius_m,
+    )
+
+
+def _blob(rng: np.random.Generator, centre: list[float], radii: list[float], n: int) -> np.ndarray:
+    direction = rng.normal(size=(n, 3))
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    return np.asarray(centre) + direction * np.asarray(radii) * rng.uniform(0, 1, (n, 1)) ** (1 / 3)
+
+
+def _leafy_tree(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """A 6 cm trunk up into the crown, then an ellipsoid crown of leaves from 1.06 m to 2.94 m (the last
+    :data:`CROWN_POINTS` points)."""
+    angle, z = rng.uniform(0, 2 * np.pi, 1500), rng.uniform(0.12, 1.3, 1500)
+    trunk = np.column_stack([0.06 * np.cos(angle), 0.06 * np.sin(angle), z])
+    crown = _blob(rng, [0.0, 0.0, CROWN_BASE_M + 0.94], [0.8, 0.6, 0.94], CROWN_POINTS)
+    colors = np.vstack([np.tile(BARK, (len(trunk), 1)), np.tile(LEAF, (len(crown), 1))])
+    return np.vstack([trunk, crown]), colors.astype(np.uint8)
+
+
+def _lowest_leaf(tree: np.ndarray) -> float:
+    return float(tree[-CROWN_POINTS:, 2].min())
+
+
+def _with(
+    points: np.ndarray, colors: np.ndarray, extra: np.ndarray, color: tuple[int, int, int]
+) -> tuple[np.ndarray, np.ndarray]:
+    return np.vstack([points, extra]), np.vstack([colors, np.tile(color, (len(extra), 1))]).astype(np.uint8)
+
+
+def _metrics(points: np.ndarray, colors: np.ndarray) -> CanopyMetrics:
+    return canopy_metrics(
+        points, trunk_xy_m=np.zeros(2), foliage=foliage_mask(colors, min_index=0.15), config=MetricsConfig()
+    )
+
+
+def _old_crown_base(points: np.ndarray, colors: np.ndarray) -> float:
+    """The lowest supported point that is foliage or away from the trunk, as the crown base was until now."""
+    candidates = crown_candidates(
+        points, np.zeros(2), foliage=foliage_mask(colors, min_index=0.15), min_radius_m=0.25
+    )
+    return crown_base_geometric(points, candidates, support_radius_m=0.05, support_points=4)
+
+
+def test_weeds_and_a_sucker_at_the_trunk_foot_leave_the_crown_base_and_width_alone() -> None:
+    rng = np.random.default_rng(20)
+    tree, colors = _leafy_tree(rng)
+    weeds = np.vstack(
+        [
+            _blob(rng, [0.3 * np.cos(a), 0.3 * np.sin(a), 0.3], [0.12, 0.12, 0.18], 400)
+            for a in (0.5, 2.6, 4.4)
+        ]
+        + [_blob(rng, [1.25, 0.4, 0.3], [0.15, 0.15, 0.18], 400)]  # farther out than the crown
+    )
+    angle = rng.uniform(0, 2 * np.pi, 500)
+    sucker = np.column_stack([0.08 * np.cos(angle), 0.08 * np.sin(angle), rng.uniform(0.12, 0.6, 500)])
+    points, point_colors = _with(*_with(tree, colors, weeds, WEED), sucker, WEED)
+    assert _old_crown_base(points, point_colors) < 0.3  # what was wrong
+    metrics, clean = _metrics(points, point_colors), _metrics(tree, colors)
+    assert metrics.crown_base_m == pytest.approx(_lowest_leaf(tree), abs=0.02)
+    assert metrics.width_m == pytest.approx(clean.width_m, abs=1e-9)
+    assert metrics.height_m == pytest.approx(clean.height_m, abs=1e-9)
+    assert metrics.thickness_m == pytest.approx(clean.thickness_m, abs=0.02)
+
+
+def test_fallen_apples_do_not_move_the_crown_base() -> None:
+    rng = np.random.default_rng(21)
+    tree, colors = _leafy_tree(rng)
+    apples = np.vstack(
+        [
+            _blob(rng, [r * np.cos(a), r * np.sin(a), 0.16], [0.04, 0.04, 0.04], 150)
+            for r, a in zip(rng.uniform(0.3, 1.2, 8), rng.uniform(0, 2 * np.pi, 8), strict=True)
+        ]
+    )  # on grass, above the 12 cm clearance
+    points, point_colors = _with(tree, colors, apples, APPLE)
+    assert _old_crown_base(points, point_colors) < 0.25
+    assert _metrics(points, point_colors).crown_base_m == pytest.approx(_metrics(tree, colors).crown_base_m)
+
+
+def test_flying_pixels_below_the_crown_do_not_lower_the_crown_base() -> None:
+    rng = np.random.default_rng(22)
+    tree, colors = _leafy_tree(rng)
+    flying = _blob(rng, [0.3, -0.2, 0.5], [0.05, 0.05, 0.25], 60)  # mixed trunk and leaf colours
+    points, point_colors = _with(tree, colors, flying, LEAF)
+    assert _old_crown_base(points, point_colors) < 0.7
+    assert _metrics(points, point_colors).crown_base_m == pytest.approx(_metrics(tree, colors).crown_base_m)
+
+
+def test_green_bark_on_the_trunk_below_the_crown_is_not_its_base() -> None:
+    """Bark that takes the colour of the leaves behind it, 10-20 cm below the crown, right on the trunk."""
+    rng = np.random.default_rng(23)
+    tree, colors = _leafy_tree(rng)
+    green = (np.abs(tree[:, 2] - 0.9) < 0.05) & (np.linalg.norm(tree[:, :2], axis=1) < 0.07)
+    colors[green] = LEAF
+    assert _old_crown_base(tree, colors) < CROWN_BASE_M - 0.1
+    assert _metrics(tree, colors).crown_base_m == pytest.approx(_lowest_leaf(tree), abs=0.02)
+
+
+def test_crown_pieces_apart_from_the_rest_still_count_as_crown() -> None:
+    """A cluster of leaves hanging 15 cm apart from the crown, at its height, and its lowest leaves close
+    to the trunk, which join it."""
+    rng = np.random.default_rng(24)
+    tree, colors = _leafy_tree(rng)
+    apart = _blob(rng, [1.0, 0.0, 1.6], [0.05, 0.05, 0.05], 200)
+    near_trunk = _blob(rng, [0.08, 0.0, 1.02], [0.03, 0.03, 0.02], 100)
+    points, point_colors = _with(*_with(tree, colors, apart, LEAF), near_trunk, LEAF)
+    crown = _crown(points, foliage_mask(point_colors, min_index=0.15))
+    assert crown[len(tree) :].all()
+    assert _metrics(points, point_colors).width_m == pytest.approx(max_horizontal_distance(points), abs=1e-9)

@@ -1,10 +1,12 @@
-"""Separating the tree from a neighbour's crown reaching into the region of interest."""
+"""Separating the tree from what else is in the region of interest: a neighbour's crown, trellis wires."""
 
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
-from canopy_core.segment import tree_component
+from canopy_core.metrics import canopy_height, max_horizontal_distance
+from canopy_core.segment import find_wires, tree_component, wire_mask
 
 
 def _blob(rng: np.random.Generator, centre: list[float], radius: float, n: int) -> np.ndarray:
@@ -57,3 +59,108 @@ def test_isolated_specks_are_dropped() -> None:
     speck = np.array([[0.9, -0.9, 0.15], [0.91, -0.9, 0.15]])
     keep = tree_component(np.vstack([tree, speck]), np.zeros(2), roi_radius_m=1.5)
     assert keep[: len(tree)].all() and not keep[len(tree) :].any()
+
+
+# Trellis wires: a horizontal steel wire along the row (x) through the trunk line, seen by two views from
+# opposite sides of the row as a sparse line of points, each view's a little off the other's (mixed
+# pixels), hidden where it runs through the crown.
+
+ROI_RADIUS_M = 1.5
+WIRES = {"tolerance_m": 0.03, "spread_m": 0.3, "max_slope_deg": 3.0, "min_coverage": 0.8}
+
+
+def _wire(
+    rng: np.random.Generator, *, z: float, y: float = 0.0, x_range: tuple[float, float] = (-1.49, 1.49)
+) -> np.ndarray:
+    """One view's points of a wire: a pixel every 8 mm, half of them read, 3 mm of noise."""
+    x = np.arange(*x_range, 0.008)
+    x = x[rng.random(x.size) < 0.5]
+    return np.column_stack([x, np.full_like(x, y), np.full_like(x, z)]) + rng.normal(0, 0.003, (x.size, 3))
+
+
+def _outside_crown(points: np.ndarray, centre_z: float = 1.7, radius: float = 0.8) -> np.ndarray:
+    return points[np.linalg.norm(points - [0.0, 0.0, centre_z], axis=1) > radius]
+
+
+def _two_views(
+    rng: np.random.Generator, tree: np.ndarray, wire_heights: list[float], **wire: tuple[float, float]
+) -> list[np.ndarray]:
+    """The tree's points shared out between two views, each with its own copy of every wire."""
+    first = rng.random(len(tree)) < 0.5
+    return [
+        np.vstack([tree[first], *(_outside_crown(_wire(rng, z=z, y=0.01, **wire)) for z in wire_heights)]),
+        np.vstack([tree[~first], *(_outside_crown(_wire(rng, z=z, y=-0.01, **wire)) for z in wire_heights)]),
+    ]
+
+
+def _tree_without_wires(views: list[np.ndarray]) -> np.ndarray:
+    """What the pipeline keeps of the candidates: the wires removed, then the tree's connected bodies."""
+    wires = find_wires(views, roi_radius_m=ROI_RADIUS_M, **WIRES)
+    points = np.vstack(views)
+    points = points[~wire_mask(points, wires, tolerance_m=WIRES["tolerance_m"], spread_m=WIRES["spread_m"])]
+    return points[tree_component(points, np.zeros(2), roi_radius_m=ROI_RADIUS_M)]
+
+
+def _old_tree(views: list[np.ndarray]) -> np.ndarray:
+    points = np.vstack(views)
+    return points[tree_component(points, np.zeros(2), roi_radius_m=ROI_RADIUS_M)]
+
+
+def test_wire_through_crown_does_not_widen_the_tree() -> None:
+    rng = np.random.default_rng(10)
+    tree = _tree(rng)
+    views = _two_views(rng, tree, [1.5])
+    assert max_horizontal_distance(_old_tree(views)) > max_horizontal_distance(tree) + 1.0  # what was wrong
+    kept = _tree_without_wires(views)
+    assert max_horizontal_distance(kept) == pytest.approx(max_horizontal_distance(tree), abs=0.02)
+    assert canopy_height(kept) == pytest.approx(canopy_height(tree), abs=0.02)
+
+
+def test_wire_just_above_the_crown_does_not_raise_the_height() -> None:
+    rng = np.random.default_rng(11)
+    tree = _tree(rng)
+    views = _two_views(rng, tree, [1.2, 2.62])  # the crown's top is at 2.5 m
+    assert canopy_height(_old_tree(views)) > canopy_height(tree) + 0.1  # the wire was joined to the crown
+    kept = _tree_without_wires(views)
+    assert canopy_height(kept) == pytest.approx(canopy_height(tree), abs=0.02)
+    assert max_horizontal_distance(kept) == pytest.approx(max_horizontal_distance(tree), abs=0.02)
+
+
+def test_wires_are_found_at_their_heights_and_nothing_else_is() -> None:
+    rng = np.random.default_rng(12)
+    views = _two_views(rng, _tree(rng), [0.6, 1.5, 2.1])
+    wires = find_wires(views, roi_radius_m=ROI_RADIUS_M, **WIRES)
+    assert sorted(wire.height_m - wire.slope * (wire.origin_xy_m @ wire.direction_xy) for wire in wires) == (
+        pytest.approx([0.6, 1.5, 2.1], abs=0.01)
+    )
+    assert find_wires(_two_views(rng, _tree(rng), []), roi_radius_m=ROI_RADIUS_M, **WIRES) == []
+
+
+def test_trellis_post_joined_to_the_tree_by_a_wire_is_dropped() -> None:
+    rng = np.random.default_rng(13)
+    tree = _tree(rng)
+    angle = rng.uniform(0, 2 * np.pi, 1500)
+    post = np.column_stack(
+        [1.4 + 0.05 * np.cos(angle), 0.05 * np.sin(angle), rng.uniform(0.12, 2.2, 1500)]
+    )  # at the cylinder's wall, 0.6 m from the crown
+    views = _two_views(rng, np.vstack([tree, post]), [1.5], x_range=(-1.49, 1.35))
+    assert (_old_tree(views)[:, 0] > 1.3).sum() > 1000  # the post was kept
+    kept = _tree_without_wires(views)
+    assert max_horizontal_distance(kept) == pytest.approx(max_horizontal_distance(tree), abs=0.02)
+
+
+@pytest.mark.parametrize("radius_m", [0.03, 0.005], ids=["branch", "twig"])
+def test_straight_level_branch_ending_in_the_cylinder_is_not_a_wire(radius_m: float) -> None:
+    """A straight horizontal branch along the row, 0.6 m beyond the crown, next to a wire (so that lines
+    parallel to the row are sought): it is shorter than the cylinder's chord and ends inside it."""
+    rng = np.random.default_rng(14)
+    angle, x = rng.uniform(0, 2 * np.pi, 3000), rng.uniform(0.3, 1.3, 3000)
+    branch = np.column_stack([x, 0.3 + radius_m * np.cos(angle), 1.4 + radius_m * np.sin(angle)])
+    tree = np.vstack([_tree(rng), branch])
+    views = _two_views(rng, tree, [2.1])
+    wires = find_wires(views, roi_radius_m=ROI_RADIUS_M, **WIRES)
+    assert len(wires) == 1
+    assert not wire_mask(branch, wires, tolerance_m=WIRES["tolerance_m"], spread_m=WIRES["spread_m"]).any()
+    assert max_horizontal_distance(_tree_without_wires(views)) == pytest.approx(
+        max_horizontal_distance(tree), abs=0.02
+    )
