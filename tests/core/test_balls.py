@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from canopy_core.backproject import ViewCloud, backproject
-from canopy_core.balls import color_mask, detect_ball, detect_balls
+from canopy_core.balls import color_likelihood, color_mask, detect_ball, detect_balls
 from canopy_core.capture import load_capture
 from canopy_core.config import BallConfig
 from canopy_core.errors import BallNotFound
@@ -26,6 +26,8 @@ WIDTH, HEIGHT, FX, FY, CX, CY = 512, 424, 365.0, 365.0, 256.0, 212.0
 """Kinect v2 depth camera."""
 
 RED, YELLOW, BLUE = (200, 30, 35), (230, 200, 30), (30, 60, 200)
+STRAW_PALE = (178, 167, 132)
+"""Pale straw: the yellow ball's hue (HSV 46 deg) at saturation 0.26, 60 % of the yellow range's floor."""
 BARK, FOLIAGE = (90, 70, 50), (60, 110, 40)
 
 
@@ -169,6 +171,27 @@ def test_color_mask_selects_colours_within_hue_saturation_and_value() -> None:
     mask = color_mask(colors, [[20, 110, 70], [34, 255, 255]])
 
     assert mask.tolist() == [True, False, False, False, False]  # pale and dark yellow fail S and V
+
+
+def test_color_likelihood_keeps_a_shaded_ball_and_drops_paler_and_other_hues() -> None:
+    yellow = BallConfig().hsv_range("yellow")
+    colors = np.array(
+        [
+            YELLOW,  # the ball, lit: inside the range
+            (46, 40, 6),  # the ball in deep shade: same hue and saturation, a fifth of the value
+            (255, 200, 24),  # the ball under a warm white balance: hue a little off the range
+            STRAW_PALE,  # straw: the ball's hue, 60 % of the range's saturation floor
+            FOLIAGE,  # leaves: another hue
+        ],
+        dtype=np.uint8,
+    )
+
+    lit, shade, warm, straw, leaf = color_likelihood(colors, yellow, hue_spread=8.0)
+
+    assert lit == 1.0 and warm > 0.8
+    assert 0.4 < shade < 0.8  # counted in proportion to its value: shade keeps hue and saturation
+    assert straw < 0.3  # below the saturation floor the likelihood falls as its cube
+    assert leaf < 0.2  # 17 hue units off the range: over two hue spreads
 
 
 def test_color_mask_wraps_red_hue_round_through_zero() -> None:
