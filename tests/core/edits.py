@@ -10,14 +10,12 @@ import numpy as np
 from PIL import Image
 
 
-def take_away_ball(capture: Path, view: str, color: str) -> None:
-    """Remove a ball from a view, as if a foot had kicked it away: the pixels around it lose their depth,
-    and every pixel of its colour is painted grey (only the blue ball is supported)."""
-    if color != "blue":
-        raise ValueError("only the blue ball can be painted away without touching the others")
+def take_away_blue_ball(capture: Path, view: str) -> None:
+    """Remove the blue ball from a view, as if a foot had kicked it away: the pixels around it lose their
+    depth, and every blue pixel is painted grey."""
     truth = json.loads((capture / "ground_truth.json").read_text())
     camera = json.loads((capture / view / "camera.json").read_text())
-    world = np.append(truth["balls"][color]["center_m"], 1.0)
+    world = np.append(truth["balls"]["blue"]["center_m"], 1.0)
     x, y, z = (np.linalg.inv(np.array(truth["views"][view]["camera_to_world"])) @ world)[:3]
     depth_file = capture / view / "depth.png"
     depth = np.asarray(Image.open(depth_file)).copy()

@@ -12,7 +12,7 @@ import pytest
 from PIL import Image
 
 from canopy_core.cloud_io import read_ply
-from tests.core.edits import take_away_ball
+from tests.core.edits import take_away_blue_ball
 
 CANOPY = str(Path(sys.executable).with_name("canopy"))
 
@@ -129,7 +129,7 @@ def test_balls_failing_selection_still_shows_every_view_and_exits_2(capture: Pat
     import shutil
 
     broken = Path(shutil.copytree(capture, tmp_path / "broken"))
-    take_away_ball(broken, "views/2", "blue")
+    take_away_blue_ball(broken, "views/2")
     done = _run("balls", str(broken), "--json", "--preview", str(tmp_path / "preview"))
     assert done.returncode == 2
     lines = done.stderr.strip().splitlines()

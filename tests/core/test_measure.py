@@ -11,7 +11,7 @@ import pytest
 from canopy_core.errors import BallNotFound
 from canopy_core.measure import STAGES, Measurement, measure
 from canopy_core.simulate import simulate_capture
-from tests.core.edits import paint_blue_grey, take_away_ball
+from tests.core.edits import paint_blue_grey, take_away_blue_ball
 
 
 def _truth(capture: Path) -> dict:
@@ -98,7 +98,7 @@ def test_ball_taken_away_in_one_view_fails_naming_view_and_colour(
     import shutil
 
     broken = Path(shutil.copytree(native_capture, tmp_path / "broken"))
-    take_away_ball(broken, "views/2", "blue")
+    take_away_blue_ball(broken, "views/2")
     with pytest.raises(BallNotFound) as info:
         measure(broken)
     assert info.value.view == "views/2" and info.value.color == "blue"
