@@ -62,6 +62,10 @@ never line up with both ends (none of the candidate lines in the same 109 captur
 _WIRE_SEEN_ALONE = 0.5
 """A line seen in this share of its chord is a wire whatever the rest of the chord holds: part of a wire
 above a tall crown is out of the cameras' view."""
+_SEEN_WIRE_MAX_SLOPE_DEG = 10.0
+"""A line seen along most of its chord (:data:`_WIRE_SEEN_ALONE`) crosses the cylinder as no leaf or branch
+does, so it is a wire even sloping this much against the fitted ground: the ground plane of a few metres
+of undulating floor tilts by degrees, and a wire sags towards its posts."""
 _WIRE_BIN_M = 0.1
 """Length of the stretches of a line's chord whose occupation measures how much of it is covered."""
 _FIRST_WIRE_TRIES = 3
@@ -419,9 +423,10 @@ def _crosses_as_wire(
     min_coverage: float,
     parallel: bool,
 ) -> bool:
-    """Whether ``wire`` is one: level within ``max_slope``, seen (``seen_m``, its points in the search
-    pool) over :data:`_WIRE_OPEN_SPAN_M`, and either seen in :data:`_WIRE_SEEN_ALONE` of its chord
-    through the cylinder or crossing the cylinder.
+    """Whether ``wire`` is one: seen (``seen_m``, its points in the search pool) over
+    :data:`_WIRE_OPEN_SPAN_M`, and either seen in :data:`_WIRE_SEEN_ALONE` of its chord through the
+    cylinder (sloping at most :data:`_SEEN_WIRE_MAX_SLOPE_DEG`), or level within ``max_slope`` and
+    crossing the cylinder.
 
     It crosses when it covers ``min_coverage`` of its chord: the stretch between the farthest points where
     it is seen (within it, a crown may hide it from every view: an open vase's shell hides its hollow
@@ -432,7 +437,7 @@ def _crosses_as_wire(
     :data:`_FIRST_WIRE_SEEN` of its chord; wires sought ``parallel`` to it need not.
     """
     chord = wire.chord(roi_radius_m)
-    if chord is None or abs(wire.slope) > max_slope:
+    if chord is None:
         return False
     start, end = chord
     seen = (seen_m[:, :2] - wire.origin_xy_m) @ wire.direction_xy
@@ -440,7 +445,9 @@ def _crosses_as_wire(
     if np.ptp(seen) < _WIRE_OPEN_SPAN_M:
         return False
     if seen_stretches.mean() >= _WIRE_SEEN_ALONE:
-        return True
+        return abs(wire.slope) <= np.tan(np.radians(_SEEN_WIRE_MAX_SLOPE_DEG))
+    if abs(wire.slope) > max_slope:
+        return False
     at_wall = int(np.ceil(_WIRE_WALL_M / _WIRE_BIN_M))
     seen_at_both_walls = bool(seen_stretches[:at_wall].any() and seen_stretches[-at_wall:].any())
     if not (parallel or seen_at_both_walls or seen_stretches.mean() >= _FIRST_WIRE_SEEN):

@@ -164,3 +164,22 @@ def test_straight_level_branch_ending_in_the_cylinder_is_not_a_wire(radius_m: fl
     assert max_horizontal_distance(_tree_without_wires(views)) == pytest.approx(
         max_horizontal_distance(tree), abs=0.02
     )
+
+
+def test_wire_seen_along_the_whole_cylinder_is_removed_even_sloping_against_the_ground_frame() -> None:
+    """The ground plane of a few metres of undulating floor tilts by degrees: a wire seen from wall to wall
+    may slope 5 degrees against it, and no leaf or branch crosses the cylinder like that."""
+    rng = np.random.default_rng(14)
+    tree = _tree(rng)
+    slope = np.tan(np.radians(5.0))
+    views = []
+    for half, y in enumerate((0.01, -0.01)):
+        wire = _wire(rng, z=2.3, y=y)  # through the top of the crown: seen over two thirds of its chord
+        wire[:, 2] += slope * wire[:, 0]
+        views.append(np.vstack([tree[half::2], _outside_crown(wire)]))
+    assert max_horizontal_distance(_old_tree(views)) > max_horizontal_distance(tree) + 1.0  # what was wrong
+
+    kept = _tree_without_wires(views)
+
+    assert max_horizontal_distance(kept) == pytest.approx(max_horizontal_distance(tree), abs=0.02)
+    assert canopy_height(kept) == pytest.approx(canopy_height(tree), abs=0.02)
