@@ -2,9 +2,9 @@
 spheres were not, as text, JSON and a picture.
 
 :func:`ball_report` runs the measurement's own selection (:func:`~canopy_core.ball_selection.select_balls`
-over all views for three colours or more, :func:`~canopy_core.ball_selection.choose_in_view`'s choice per
-view for fewer) and, when it fails, still describes what each view shows on its own
-(:func:`~canopy_core.ball_selection.describe_view`), so the crew sees which ball to re-lay.
+over all views) for three colours or more; for fewer, and when the selection fails, it describes what each
+view shows on its own (:func:`~canopy_core.ball_selection.describe_view`), so the crew sees which ball to
+re-lay.
 :func:`draw_ball_preview` draws a view's choice on its colour image: each chosen ball as a circle of its
 projected size in its colour, labelled with its range, and each rejected sphere as a thin grey circle with
 its objection's code.
@@ -144,7 +144,7 @@ def ball_report(
         The balls' size, colours and thresholds.
     grounds
         Each view's ground plane (:func:`~canopy_core.ground.view_ground_plane`), or None where none was
-        found; unused for fewer than three colours (as :func:`~canopy_core.ball_selection.choose_in_view`).
+        found; unused for fewer than three colours (each view is described on its own).
 
     Returns
     -------

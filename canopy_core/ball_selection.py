@@ -342,8 +342,8 @@ def _shortlist(view: ViewBallCandidates, config: BallConfig, *, ground: GroundPl
             objection = candidate.objection(color, config) or _floating(candidate, ground, config)
             if objection is None and len(plausible[color]) < _CANDIDATES_PER_COLOR:
                 plausible[color].append(candidate)
-            elif objection is not None:
-                refused[color].append(Rejection(candidate, objection))
+            else:
+                refused[color].append(Rejection(candidate, objection or _weaker()))
     return _Shortlist(plausible=plausible, refused=refused)
 
 

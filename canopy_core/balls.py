@@ -100,7 +100,8 @@ class Objection:
 
     ``code`` is one word for tools and pictures: ``points``, ``radius``, ``residual``, ``coverage`` (its
     geometry is not a ball's), ``colour`` (too little of the ball's colour) here, and ``floating``,
-    ``taken``, ``inconsistent``, ``weaker`` from :mod:`canopy_core.ball_selection`; ``message`` says it in
+    ``taken``, ``inconsistent``, ``weaker``, ``missing`` (no sphere at all) from
+    :mod:`canopy_core.ball_selection`; ``message`` says it in
     a sentence, ``hint`` what the crew can do about it.
     """
 
@@ -239,7 +240,7 @@ class ViewBallCandidates:
                 "than calibration_balls.diameter_m; check with `canopy balls --preview`",
             )
         best = max(colored, key=lambda c: c.score(color, radius_m=config.radius_m))
-        objection = best.objection(color, config) or Objection("weaker", "every plausible sphere was taken")
+        objection = best.objection(color, config) or Objection("taken", "every plausible sphere was taken")
         return BallNotFound(objection.message, view=self.view, color=color, hint=objection.hint)
 
 
@@ -581,7 +582,7 @@ def _blob_centres(
     The second source of candidates, used when the votes found no plausible ball of the colour: a small
     far ball in sun has normals too noisy to gather votes, but its points that surely have its colour
     stand alone. A group is a connected set of pixels (8-neighbourhood) without a depth step of a radius;
-    it is ball-sized when it is one to
+    it is ball-sized when it is from half a diameter (a ball mostly hidden) to
     ``_MAX_BLOB_DIAMETERS`` diameters across at its depth. Its likely centre lies one radius behind its
     mean point, along the line of sight.
     """

@@ -478,4 +478,10 @@ def _metrics_or_fail(
             view=view,
             hint="check that the tree stands among the balls and inside roi.radius_m",
         )
-    return canopy_metrics(points, trunk_xy_m=trunk_xy, foliage=foliage, crown=crown, config=config.metrics)
+    try:
+        return canopy_metrics(
+            points, trunk_xy_m=trunk_xy, foliage=foliage, crown=crown, config=config.metrics
+        )
+    except MeasurementError as error:
+        error.view = error.view or view
+        raise

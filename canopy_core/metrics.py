@@ -21,6 +21,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from canopy_core.config import MetricsConfig
+from canopy_core.errors import MeasurementError
 
 __all__ = [
     "CanopyMetrics",
@@ -311,6 +312,11 @@ def canopy_metrics(
             trunk_column_m=config.trunk_column_radius_m,
         )
     kept = crown | ~candidates
+    if not crown.any():
+        raise MeasurementError(
+            f"no crown among the {points_m.shape[0]} tree points: only ground vegetation, fruit or the trunk",
+            hint="check that the tree's crown is in view and inside roi.radius_m",
+        )
     tree_points = points_m[kept]
     height = canopy_height(
         tree_points, support_radius_m=config.support_radius_m, support_points=config.top_support_points

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from canopy_core.config import MetricsConfig
+from canopy_core.errors import MeasurementError
 from canopy_core.foliage import foliage_mask
 from canopy_core.metrics import (
     CanopyMetrics,
@@ -233,3 +234,17 @@ def test_crown_pieces_apart_from_the_rest_still_count_as_crown() -> None:
     crown = _crown(points, foliage_mask(point_colors, min_index=0.15))
     assert crown[len(tree) :].all()
     assert _metrics(points, point_colors).width_m == pytest.approx(max_horizontal_distance(points), abs=1e-9)
+
+
+def test_points_without_any_crown_fail_clearly_instead_of_measuring_nothing() -> None:
+    rng = np.random.default_rng(30)
+    weeds = rng.uniform([-0.5, -0.5, 0.15], [0.5, 0.5, 0.5], size=(200, 3))
+
+    with pytest.raises(MeasurementError, match="no crown among the 200 tree points"):
+        canopy_metrics(
+            weeds,
+            trunk_xy_m=np.zeros(2),
+            foliage=np.ones(200, dtype=bool),
+            crown=np.zeros(200, dtype=bool),
+            config=MetricsConfig(),
+        )
