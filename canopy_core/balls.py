@@ -464,7 +464,13 @@ class _Scene:
 
     def pixels_of_ball(self, centre_m: np.ndarray, radius_m: float) -> float:
         """How many pixels a ball of this radius and centre covers in the image."""
-        sine_sq = min((radius_m / float(np.linalg.norm(centre_m))) ** 2, 1.0)
+        return float(self.pixels_of_balls(np.asarray(centre_m)[None, :], radius_m)[0])
+
+    def pixels_of_balls(self, centres_m: np.ndarray, radius_m: float) -> np.ndarray:
+        """How many pixels balls of this radius at ``(N, 3)`` centres cover: the solid angle of each
+        times the pixels per steradian (a centre nearer than the radius covers a hemisphere)."""
+        ranges = np.maximum(np.linalg.norm(centres_m, axis=1), radius_m)
+        sine_sq = np.minimum((radius_m / ranges) ** 2, 1.0)
         return 2.0 * np.pi * (1.0 - np.sqrt(1.0 - sine_sq)) * self.focal_px[0] * self.focal_px[1]
 
     def normals(self, indices: np.ndarray, *, radius_m: float) -> tuple[np.ndarray, np.ndarray]:
@@ -540,11 +546,7 @@ def _vote_peaks(votes: np.ndarray, weights: np.ndarray, scene: _Scene, radius_m:
     weighted by the colour likelihood of the points that voted (``weights``): a ball of the colour before
     a trunk of a near colour.
     """
-    ranges = np.linalg.norm(votes, axis=1)
-    sine_sq = np.minimum((radius_m / np.maximum(ranges, radius_m)) ** 2, 1.0)
-    expected = np.maximum(
-        2.0 * np.pi * (1.0 - np.sqrt(1.0 - sine_sq)) * scene.focal_px[0] * scene.focal_px[1], 1.0
-    )
+    expected = np.maximum(scene.pixels_of_balls(votes, radius_m), 1.0)
     # Votes are thinned to about _VOTES_PER_BALL per ball-sized area, so a near or large ball's thousands
     # of agreeing votes cost no more to count than a far one's; counts are scaled back by the share kept.
     kept_share = np.minimum(1.0, _VOTES_PER_BALL / expected)
@@ -651,7 +653,10 @@ def _candidate_at(
     outline = scene.cloud.points_m[scene.window(peak, radius, radii=_OUTLINE_RADII + 0.5)]
     maybe_indices = window[near][(likelihood[near] >= _MAYBE_LIKELIHOOD) | unseen[near]]
     best: BallCandidate | None = None
-    for fitted in (sure, maybe) if sure.shape[0] >= config.min_points else (maybe,):
+    # The sure points first, when they are enough and fewer than all that may be the ball (with color None
+    # both are every point near the peak: fitting them twice would give the same sphere).
+    tries = (sure, maybe) if config.min_points <= sure.shape[0] < maybe.shape[0] else (maybe,)
+    for fitted in tries:
         try:
             fit = _fit_near(fitted, outline, config, min_start_inliers=_START_SHARE * needed)
         except ValueError:
