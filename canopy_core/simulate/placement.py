@@ -3,13 +3,17 @@
 The balls are laid on the ground 0.35-0.8 m from the trunk; each camera stands 2.6-4.0 m from the trunk,
 0.8-1.6 m above the ground, looks at the trunk (a few degrees of yaw and roll jitter) and is pitched so
 that the whole main tree lies inside the depth image and the balls inside both images. A layout is kept
-only if ray casting finds at least :data:`MIN_BALL_PIXELS` pixels of every ball in every depth image,
-with everything else of the scene in place (weeds and wires in the mesh, apples in the crown, and the
-objects laid beside the balls, such as fallen apples); otherwise the balls and cameras are drawn again.
+only if every ball keeps to the crew's rule in every depth image, with everything else of the scene in place
+(weeds and wires in the mesh, apples in the crown, and the objects laid beside the balls, such as fallen
+apples): at least :data:`MIN_BALL_PIXELS` of its pixels, and at least :data:`MIN_CLEAN_SHARE` of its disc
+in pixels that see nothing but the ball (all of a pixel's rays hit it). A pixel shared with a grass blade
+or a leaf in front reads a blend of their depths, not the ball's: a ball behind a veil of grass shows its
+colour to the crew but no depth to the sensor. Otherwise the balls and cameras are drawn again.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -20,11 +24,24 @@ from canopy_core.capture import Intrinsics
 from canopy_core.simulate.camera import CameraPose, KinectRig, camera_pose, project
 from canopy_core.simulate.raycast import SceneRaycaster, Sphere
 from canopy_core.simulate.scene import Orchard, resting_balls
+from canopy_core.simulate.sensor import DEPTH_SUBPIXEL_OFFSETS
 
-__all__ = ["MIN_BALL_PIXELS", "Layout", "place_balls_and_cameras", "view_azimuths"]
+__all__ = [
+    "MIN_BALL_PIXELS",
+    "MIN_CLEAN_SHARE",
+    "Layout",
+    "ball_visibility",
+    "place_balls_and_cameras",
+    "view_azimuths",
+]
 
 MIN_BALL_PIXELS = 30
-"""Fewest depth pixels of each ball each view must have (before sensor dropout)."""
+"""Fewest depth pixels of each ball each view must have (pixel centres on the ball, before sensor dropout)."""
+MIN_CLEAN_SHARE = 1.0 / 3.0
+"""Least share of each ball's disc (its projected area in pixels) that must lie in pixels seeing only the
+ball, in each view: the crew lays the balls where every camera sees at least a third of each, with no grass
+in front of it."""
+_CENTRE_RAY = int(np.flatnonzero((DEPTH_SUBPIXEL_OFFSETS == 0.0).all(axis=1))[0])
 _BALL_DISTANCE_M = (0.35, 0.8)
 _MIN_BALL_SEPARATION_RAD = np.radians(60.0)
 _CAMERA_DISTANCE_M = (2.6, 4.0)
@@ -41,12 +58,14 @@ _POSE_ATTEMPTS = 40
 
 @dataclass(frozen=True, eq=False)
 class Layout:
-    """The balls (red, yellow, blue) and the depth cameras' poses, with each ball's pixel count per view, and
-    the spheres laid beside the balls (see :func:`place_balls_and_cameras`)."""
+    """The balls (red, yellow, blue) and the depth cameras' poses; per view, each ball's pixel count and
+    the share of its disc in pixels that see only the ball; the spheres laid beside the balls (see
+    :func:`place_balls_and_cameras`)."""
 
     balls: tuple[Sphere, ...]
     poses: tuple[CameraPose, ...]
     ball_pixels: tuple[tuple[int, ...], ...]
+    ball_clean_shares: tuple[tuple[float, ...], ...]
     beside_balls: tuple[Sphere, ...] = ()
 
 
@@ -149,12 +168,42 @@ def _framed_pose(
     return None
 
 
-def _ball_pixel_counts(
-    raycaster: SceneRaycaster, pose: CameraPose, intrinsics: Intrinsics, ball_count: int
-) -> tuple[int, ...]:
-    """Pixels of each of the first ``ball_count`` spheres (the balls) in a camera."""
-    surface = raycaster.cast_camera(pose, intrinsics).surface
-    return tuple(int((surface == raycaster.sphere_surface(i)).sum()) for i in range(ball_count))
+def ball_visibility(
+    raycaster: SceneRaycaster, pose: CameraPose, intrinsics: Intrinsics, balls: tuple[Sphere, ...]
+) -> tuple[tuple[int, ...], tuple[float, ...]]:
+    """Per ball (the first spheres of ``raycaster``) in a depth camera: its pixels (centre rays on it) and
+    the share of its disc (pi (f r / z)^2 pixels, z its centre's depth) in pixels all of whose rays hit it.
+
+    Only the pixels around each ball are cast: a crop of the image is a camera with the same focal lengths
+    and the principal point moved by the crop's corner.
+    """
+    pixels, shares = [], []
+    for index, ball in enumerate(balls):
+        corners, depths = project(pose, intrinsics, ball.box_corners())
+        if (depths <= 0).any():
+            pixels.append(0)
+            shares.append(0.0)
+            continue
+        low = np.clip(np.floor(corners.min(axis=0)).astype(int) - 1, 0, [intrinsics.width, intrinsics.height])
+        high = np.clip(np.ceil(corners.max(axis=0)).astype(int) + 2, 0, [intrinsics.width, intrinsics.height])
+        crop = dataclasses.replace(
+            intrinsics,
+            width=int(high[0] - low[0]),
+            height=int(high[1] - low[1]),
+            cx=intrinsics.cx - low[0],
+            cy=intrinsics.cy - low[1],
+        )
+        if crop.width <= 0 or crop.height <= 0:
+            pixels.append(0)
+            shares.append(0.0)
+            continue
+        surface = raycaster.cast_camera(pose, crop, subpixel_offsets=DEPTH_SUBPIXEL_OFFSETS).surface
+        on_ball = surface == raycaster.sphere_surface(index)
+        depth = float(pose.to_camera(ball.centre[None, :])[0, 2])
+        disc = np.pi * intrinsics.fx * intrinsics.fy * (ball.radius_m / depth) ** 2
+        pixels.append(int(on_ball[..., _CENTRE_RAY].sum()))
+        shares.append(float(on_ball.all(axis=-1).sum() / disc))
+    return tuple(pixels), tuple(shares)
 
 
 def place_balls_and_cameras(
@@ -205,9 +254,13 @@ def place_balls_and_cameras(
             continue
         beside = () if beside_balls is None else beside_balls(balls)
         with_balls = raycaster.with_spheres((*balls, *raycaster.spheres, *beside))
-        counts = tuple(_ball_pixel_counts(with_balls, pose, rig.depth, len(balls)) for pose in poses)
-        if min(min(per_view) for per_view in counts) >= MIN_BALL_PIXELS:
-            return Layout(balls=balls, poses=tuple(poses), ball_pixels=counts, beside_balls=beside)
+        seen = [ball_visibility(with_balls, pose, rig.depth, balls) for pose in poses]
+        counts = tuple(pixels for pixels, _ in seen)
+        shares = tuple(clean for _, clean in seen)
+        if min(map(min, counts)) >= MIN_BALL_PIXELS and min(map(min, shares)) >= MIN_CLEAN_SHARE:
+            return Layout(
+                balls=balls, poses=tuple(poses), ball_pixels=counts, ball_clean_shares=shares, beside_balls=beside
+            )
     raise RuntimeError(
         f"no layout in {_LAYOUT_ATTEMPTS} attempts frames the tree and shows every ball to every view"
     )

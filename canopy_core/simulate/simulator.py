@@ -105,10 +105,11 @@ def _simulate(
             camera=camera,
             camera_to_world=pose.camera_to_world,
             ball_pixels=ball_pixels,
+            ball_clean_shares=clean_shares,
             response=response,
         )
-        for number, (pose, ball_pixels, response) in enumerate(
-            zip(layout.poses, layout.ball_pixels, responses, strict=True), start=1
+        for number, (pose, ball_pixels, clean_shares, response) in enumerate(
+            zip(layout.poses, layout.ball_pixels, layout.ball_clean_shares, responses, strict=True), start=1
         )
     ]
     return write_capture(

@@ -47,14 +47,16 @@ class CaptureLabels:
 
 @dataclass(frozen=True, eq=False)
 class SimulatedView:
-    """One rendered view: its name (``views/1``), images, calibration, depth-camera-to-world pose and colour
-    camera response (None: neutral)."""
+    """One rendered view: its name (``views/1``), images, calibration, depth-camera-to-world pose, each
+    ball's pixels and share of its disc seen clean (see :mod:`.placement`) and colour camera response (None:
+    neutral)."""
 
     name: str
     frame: SensorFrame
     camera: CameraModel
     camera_to_world: np.ndarray
     ball_pixels: tuple[int, ...]
+    ball_clean_shares: tuple[float, ...]
     response: CameraResponse | None = None
 
 
@@ -147,6 +149,10 @@ def _ground_truth_json(truth: GroundTruth, views: Sequence[SimulatedView]) -> di
             view.name: {
                 "camera_to_world": view.camera_to_world.tolist(),
                 "ball_pixels": dict(zip(BALL_COLORS, view.ball_pixels, strict=True)),
+                "ball_clean_shares": {
+                    color: round(share, 3)
+                    for color, share in zip(BALL_COLORS, view.ball_clean_shares, strict=True)
+                },
             }
             for view in views
         },
