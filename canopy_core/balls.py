@@ -83,6 +83,9 @@ shade keeps 0.1 or more, other colours, sky and bark about 0."""
 _START_SHARE = 0.6
 """A RANSAC sphere with fewer than this share of the points a ball must show is not refined: refining
 rarely gains more than a third of the inliers."""
+_BESIDE_RADII = 3.0
+"""A sphere touching another is looked for among the points within this many radii of the other's centre
+(a ball's far side lies 3 radii from the centre of an apple or ball touching it)."""
 _OUTLINE_RADII = 1.8
 """Coverage is judged on the pixels within this many projected radii of the fitted centre."""
 _RADIUS_SPREAD = 0.05
@@ -305,9 +308,7 @@ def _likelihood(hsv: np.ndarray, hsv_range: list[list[int]], *, hue_spread: floa
     distance = np.minimum(_hue_distance(hue, h_low), _hue_distance(hue, h_high))
     hue_term = np.where(inside_hue, 1.0, np.exp(-0.5 * (distance / hue_spread) ** 2))
     saturation_term = _band_term(saturation, s_low, s_high) ** _SATURATION_FALL
-    return (hue_term * saturation_term * _band_term(value, v_low, v_high)).astype(
-        np.float32
-    )
+    return (hue_term * saturation_term * _band_term(value, v_low, v_high)).astype(np.float32)
 
 
 def _hue_distance(hue: np.ndarray, bound: float) -> np.ndarray:
@@ -378,16 +379,54 @@ def find_ball_candidates(cloud: ViewCloud, config: BallConfig) -> ViewBallCandid
 def _add_candidates(
     candidates: list[BallCandidate], peaks: list[np.ndarray], color: int, scene: _Scene, config: BallConfig
 ) -> None:
-    """Fit a sphere at each peak not within a radius of a known one, and keep each new sphere once."""
+    """Fit a sphere at each peak not within a radius of a known one, then look for one beside each new
+    sphere (see :func:`_beside`) and keep it if it is a plausible ball; keep each new sphere once.
+
+    The peaks come first: a sphere beside another is found from what is left around it, and a fragment
+    of the ball found that way must not keep the ball's own peak from being fitted.
+    """
+    found: list[BallCandidate] = []
     for peak in peaks:
         if any(np.linalg.norm(peak - other.fit.center_m) < config.radius_m for other in candidates):
             continue  # that sphere is known already (found for another colour, or by another peak)
         candidate = _candidate_at(peak, color, scene, config)
-        if candidate is not None and all(
-            np.linalg.norm(candidate.fit.center_m - other.fit.center_m) > config.radius_m
-            for other in candidates
-        ):
+        if candidate is not None and _new(candidate, candidates, config):
             candidates.append(candidate)
+            found.append(candidate)
+    for candidate in found:
+        neighbour = _beside(candidate, color, scene, config)
+        if neighbour is not None and neighbour.problem is None and _new(neighbour, candidates, config):
+            candidates.append(neighbour)
+
+
+def _new(candidate: BallCandidate, candidates: list[BallCandidate], config: BallConfig) -> bool:
+    """Whether ``candidate``'s sphere is none of ``candidates``' (centres a radius apart or more)."""
+    return all(
+        np.linalg.norm(candidate.fit.center_m - other.fit.center_m) > config.radius_m for other in candidates
+    )
+
+
+def _beside(candidate: BallCandidate, color: int, scene: _Scene, config: BallConfig) -> BallCandidate | None:
+    """A second sphere touching ``candidate``'s, fitted to the points of the colour around it that are not
+    on or in it; None when too few are left for a ball.
+
+    A red apple lying against the red ball makes one vote peak of the two, or the ball's few votes lose to
+    the apple's: the sphere fitted there is the apple's, and the ball's points are what remains around it.
+    """
+    radius = config.radius_m
+    centre = candidate.fit.center_m
+    window = scene.window(centre, radius, radii=_BESIDE_RADII + 0.5)
+    points = scene.cloud.points_m[window]
+    distance = np.linalg.norm(points - centre, axis=1)
+    tolerance = _range_tolerance(config.inlier_tolerance_m, centre)
+    around = (distance > radius + tolerance) & (distance < _BESIDE_RADII * radius)
+    around &= (scene.likelihood[color, window] >= _SURE_LIKELIHOOD) | ~scene.cloud.has_color[window]
+    needed = max(config.min_points, config.min_completeness * candidate.expected_points)
+    if np.count_nonzero(around) < needed:
+        return None
+    rest = points[around].mean(axis=0)
+    estimate = rest + radius * rest / np.linalg.norm(rest)
+    return _candidate_at(estimate, color, scene, config, apart_from=candidate.fit)
 
 
 def detect_balls(cloud: ViewCloud, config: BallConfig) -> dict[str, SphereFit]:
@@ -626,7 +665,12 @@ def _blob_labels(points_m: np.ndarray, pixels: np.ndarray, *, max_depth_step_m: 
 
 
 def _candidate_at(
-    peak: np.ndarray, color: int | None, scene: _Scene, config: BallConfig
+    peak: np.ndarray,
+    color: int | None,
+    scene: _Scene,
+    config: BallConfig,
+    *,
+    apart_from: SphereFit | None = None,
 ) -> BallCandidate | None:
     """The sphere near a vote peak of the votes of colour ``color`` (its index), described; None when no
     sphere of the radius holds there.
@@ -637,10 +681,13 @@ def _candidate_at(
     background, do not pull its centre. When that sphere is not a ball's (too few sure points, or a
     sunlit half that misleads the fit), all that may have the colour are fitted, and the better of the
     two is kept. Points the colour camera does not see count as both; with ``color`` None, every point
-    does.
+    does. Points on or inside the sphere ``apart_from`` (a neighbour already found) are left out.
     """
     radius = config.radius_m
     window = scene.window(peak, radius, radii=_NEAR_RADII + 0.5)
+    if apart_from is not None:
+        reach = apart_from.radius_m + _range_tolerance(config.inlier_tolerance_m, apart_from.center_m)
+        window = window[np.linalg.norm(scene.cloud.points_m[window] - apart_from.center_m, axis=1) > reach]
     points = scene.cloud.points_m[window]
     unseen = ~scene.cloud.has_color[window] if color is not None else np.ones(window.size, dtype=bool)
     likelihood = scene.likelihood[color, window] if color is not None else np.ones(window.size)
