@@ -70,8 +70,10 @@ def _report(scenario: str, results: list[dict], options: argparse.Namespace) -> 
     done = [r for r in results if "error" not in r]
     wrong = [r for r in done if _worst_error(r)[1] > CONFIDENTLY_WRONG]
     share = 100 * len(done) / len(results)
-    print(f"\n== {scenario}: {len(done)} of {len(results)} measured ({share:.1f} %), {len(failed)} failed, "
-          f"{len(wrong)} confidently wrong (>{CONFIDENTLY_WRONG:.0%} off, no error)")
+    print(
+        f"\n== {scenario}: {len(done)} of {len(results)} measured ({share:.1f} %), {len(failed)} failed, "
+        f"{len(wrong)} confidently wrong (>{CONFIDENTLY_WRONG:.0%} off, no error)"
+    )
     for reason, count in Counter(r["reason"] for r in failed).most_common():
         print(f"  failed {count}x: {reason}")
     for r in failed if options.details else []:
@@ -107,8 +109,10 @@ def main() -> None:
     parser.add_argument("--details", action="store_true", help="Print every tree's errors and failures.")
     options = parser.parse_args()
     scenarios = [s.value for s in Scenario] if options.scenario == "all" else [options.scenario]
-    print(f"{options.count} trees per family, {options.views} views each, seeds {options.seed * 1000} to "
-          f"{options.seed * 1000 + options.count - 1}")
+    print(
+        f"{options.count} trees per family, {options.views} views each, seeds {options.seed * 1000} to "
+        f"{options.seed * 1000 + options.count - 1}"
+    )
     for scenario in scenarios:
         with tempfile.TemporaryDirectory(prefix="canopy-bench-") as scratch:
             work = [

@@ -269,7 +269,10 @@ class MetricsConfig(_Section):
         0.05, gt=0.0, description="Neighbourhood in which the top and the crown base need supporting points."
     )
     top_support_points: int = Field(
-        2, ge=1, description="The top counts only with this many other points within support_radius_m."
+        2,
+        ge=1,
+        description="The top, and each of the two points whose distance is W, count only with this many "
+        "other points within support_radius_m.",
     )
     base_support_points: int = Field(
         4, ge=1, description="The crown base counts only with this many other points within support_radius_m."
@@ -297,6 +300,18 @@ class MetricsConfig(_Section):
         gt=0.0,
         description="Foliage this close to the trunk's axis (suckers, bark coloured by the leaves behind it) "
         "joins the crown only within crown_link_m of it, and never links anything to it (weeds at the foot).",
+    )
+    wire_piece_min_length_m: float = Field(
+        0.1,
+        gt=0.0,
+        description="A body apart from the crown's main body that is a level straight line at least this "
+        "long is a piece of trellis wire seen beside the crown, not crown: apple leaves are 5-10 cm long.",
+    )
+    wire_piece_max_thickness_m: float = Field(
+        0.015,
+        gt=0.0,
+        description="Such a line's points stand at most this far (RMS) above or below it: half the wire "
+        "tolerance. Across it in plan they may spread further (mixed pixels lie along the camera's rays).",
     )
     foliage_min_exgr: float = Field(
         0.15, ge=0.0, description="Points whose ExGR vegetation index exceeds this are foliage (crown base)."

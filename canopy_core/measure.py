@@ -271,7 +271,13 @@ def measure(
 
     stages.start("metrics")
     trunk_xy = np.array(ground.trunk_xy_m)
-    tree_masks = _tree_masks(roi_points, apply(ground.world_from_reference, centres[0]), trunk_xy, config)
+    tree_masks = _tree_masks(
+        roi_points,
+        [pose[:3, 3] for pose in world_from_view],
+        apply(ground.world_from_reference, centres[0]),
+        trunk_xy,
+        config,
+    )
     modes = _modes(capture, roi_points, roi_colors, tree_masks, trunk_xy, config)
 
     diagnostics = tuple(
@@ -362,8 +368,7 @@ def _modes(
         candidates=crown_candidates(
             merged, trunk_xy, foliage=merged_foliage, min_radius_m=config.metrics.crown_base_min_radius_m
         ),
-        link_m=config.metrics.crown_link_m,
-        trunk_column_m=config.metrics.trunk_column_radius_m,
+        config=config.metrics,
     )
     crowns = np.split(crown, np.cumsum([view_points.shape[0] for view_points in points])[:-1])
     modes: dict[str, CanopyMetrics] = {}
@@ -423,10 +428,15 @@ def _roi_cloud(
 
 
 def _tree_masks(
-    roi_points: list[np.ndarray], balls_world: np.ndarray, trunk_xy: np.ndarray, config: MeasureConfig
+    roi_points: list[np.ndarray],
+    cameras_m: list[np.ndarray],
+    balls_world: np.ndarray,
+    trunk_xy: np.ndarray,
+    config: MeasureConfig,
 ) -> list[np.ndarray]:
     """Per view, the points of the tree: above the local ground's clearance, off the balls, off the trellis
-    wires, not intruders.
+    wires (each view's mixed pixels of a wire lie in the plane through the wire and its camera centre,
+    ``cameras_m``, world frame), not intruders.
 
     The ground height map, the wires and the intruders are decided on all views together, where each is most
     complete. Wires go first: they join the crown to the posts and the neighbours they pass through.
@@ -450,8 +460,17 @@ def _tree_masks(
         max_slope_deg=config.wires.max_slope_deg,
         min_coverage=config.wires.min_coverage,
     )
-    off_wires = ~wire_mask(
-        candidates, wires, tolerance_m=config.wires.tolerance_m, spread_m=config.wires.spread_m
+    off_wires = ~np.concatenate(
+        [
+            wire_mask(
+                points,
+                wires,
+                tolerance_m=config.wires.tolerance_m,
+                spread_m=config.wires.spread_m,
+                camera_m=camera,
+            )
+            for points, camera in zip(per_view, cameras_m, strict=True)
+        ]
     )
     connected = np.zeros(candidates.shape[0], dtype=bool)
     connected[off_wires] = tree_component(

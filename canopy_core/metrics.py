@@ -22,6 +22,7 @@ from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from canopy_core.config import MetricsConfig
 from canopy_core.errors import MeasurementError
+from canopy_core.segment import is_wire_piece
 
 __all__ = [
     "CanopyMetrics",
@@ -92,21 +93,48 @@ def canopy_height(
     return float(z_max - ground_z_m)
 
 
-def max_horizontal_distance(points_m: np.ndarray) -> float:
+def max_horizontal_distance(
+    points_m: np.ndarray, *, support_radius_m: float | None = None, support_points: int = 0
+) -> float:
     """Maximum canopy width W: the largest distance between two points projected on the ground (eq. 6).
 
     Exact: the two farthest points of a set are vertices of its convex hull, so only hull vertices
-    (tens to hundreds) are compared pairwise instead of all N² pairs.
+    (tens to hundreds) are compared pairwise instead of all N² pairs. With ``support_radius_m``, as for the
+    top (:func:`canopy_height`), a point counts only with ``support_points`` other points within that
+    radius: hull vertices without them are dropped and the hull taken again, so no stray point (a
+    flying pixel, a speck of wire) sets W.
     """
     xy = points_m[:, :2]
+    if support_radius_m is not None and points_m.shape[0] > support_points:
+        neighbours = cKDTree(points_m)
+        alive = np.ones(points_m.shape[0], dtype=bool)
+        while True:
+            hull = _hull_vertices(xy[alive])
+            indices = np.flatnonzero(alive)[hull]
+            counts = (
+                neighbours.query_ball_point(points_m[indices], r=support_radius_m, return_length=True) - 1
+            )
+            stray = indices[counts < support_points]
+            if stray.size == 0 or np.count_nonzero(alive) - stray.size < 3:
+                break
+            alive[stray] = False
+        xy = xy[alive]
     if xy.shape[0] < 3:
         return float(np.linalg.norm(xy[0] - xy[-1])) if xy.shape[0] else 0.0
-    try:
-        vertices = xy[ConvexHull(xy, qhull_options="QJ").vertices]
-    except (QhullError, ValueError):  # all points (nearly) equal
-        return float(np.ptp(xy, axis=0).max())
+    vertices = xy[_hull_vertices(xy)]
     differences = vertices[:, None, :] - vertices[None, :, :]
     return float(np.sqrt((differences**2).sum(axis=2).max()))
+
+
+def _hull_vertices(xy: np.ndarray) -> np.ndarray:
+    """Indices of the vertices of the convex hull of ``(N, 2)`` points; every index when there is none
+    (fewer than three points, or all on a line)."""
+    if xy.shape[0] < 3:
+        return np.arange(xy.shape[0])
+    try:
+        return np.asarray(ConvexHull(xy, qhull_options="QJ").vertices)
+    except (QhullError, ValueError):  # all points (nearly) equal
+        return np.arange(xy.shape[0])
 
 
 def height_density(
@@ -161,24 +189,22 @@ def crown_candidates(
 
 
 def crown_mask(
-    points_m: np.ndarray,
-    trunk_xy_m: np.ndarray,
-    *,
-    candidates: np.ndarray,
-    link_m: float,
-    trunk_column_m: float,
+    points_m: np.ndarray, trunk_xy_m: np.ndarray, *, candidates: np.ndarray, config: MetricsConfig
 ) -> np.ndarray:
     """Mask of the crown's points among the ``candidates`` (see :func:`crown_candidates`).
 
     The candidates outside the trunk's column are grouped into bodies separated by gaps wider than
-    ``link_m`` (on occupied voxels). The crown is the largest body and every body at its height, that is
-    with at least half of its own height above the largest body's lowest point: pieces of the crown apart
-    from the rest (a sparse cluster, the top leaves) are; ground vegetation, suckers, fallen fruit and stray
-    points below the crown, which the bare trunk separates from it, are not, even where they reach up to
-    its lowest leaves. Candidates inside the column (within ``trunk_column_m`` of the trunk's axis: suckers,
-    leaves next to the trunk, bark coloured by the leaves behind it) join the crown when they are within
-    ``link_m`` of it, but never link anything to it: not what grows at the trunk's foot, not each other up
-    the trunk. With no candidate outside the column, the crown is all the candidates.
+    ``config.crown_link_m`` (on occupied voxels). The crown is the largest body and every body at its
+    height, that is with at least half of its own height above the largest body's lowest point: pieces of
+    the crown apart from the rest (a sparse cluster, the top leaves) are; ground vegetation, suckers, fallen
+    fruit and stray points below the crown, which the bare trunk separates from it, are not, even where they
+    reach up to its lowest leaves. Nor is a body that is a level straight line longer than a leaf (a piece
+    of trellis wire beside the crown that the wire search missed; see
+    :func:`canopy_core.segment.is_wire_piece`). Candidates inside the column (within
+    ``config.trunk_column_radius_m`` of the trunk's axis: suckers, leaves next to the trunk, bark coloured
+    by the leaves behind it) join the crown when they are within the link distance of it, but never link
+    anything to it: not what grows at the trunk's foot, not each other up the trunk. With no candidate
+    outside the column, the crown is all the candidates.
 
     Parameters
     ----------
@@ -188,16 +214,15 @@ def crown_mask(
         The trunk's horizontal position.
     candidates
         Boolean mask over ``points_m`` of the points that may be crown.
-    link_m
-        Candidates closer than this belong to one body.
-    trunk_column_m
-        Radius of the trunk's column round its axis.
+    config
+        The link distance, the trunk's column and what makes a wire piece.
 
     Returns
     -------
     numpy.ndarray
         Boolean mask over ``points_m``.
     """
+    link_m, trunk_column_m = config.crown_link_m, config.trunk_column_radius_m
     radial = np.linalg.norm(points_m[:, :2] - trunk_xy_m, axis=1)
     in_column = radial <= trunk_column_m
     grouped = np.flatnonzero(candidates & ~in_column)
@@ -209,8 +234,16 @@ def crown_mask(
     starts = np.flatnonzero(np.r_[True, np.diff(labels[order]) != 0])
     bottom = z[order[starts]]
     top = z[order[np.r_[starts[1:], order.size] - 1]]
-    lowest = bottom[int(np.argmax(voxels))]
-    at_crown_height = top - np.maximum(bottom, lowest) >= _CROWN_SHARE_ABOVE * (top - bottom)
+    main = int(np.argmax(voxels))
+    at_crown_height = top - np.maximum(bottom, bottom[main]) >= _CROWN_SHARE_ABOVE * (top - bottom)
+    ends = np.r_[starts[1:], order.size]
+    for body in np.flatnonzero(at_crown_height):
+        if body != main and is_wire_piece(
+            points_m[grouped[order[starts[body] : ends[body]]]],
+            min_length_m=config.wire_piece_min_length_m,
+            max_thickness_m=config.wire_piece_max_thickness_m,
+        ):
+            at_crown_height[body] = False
     crown = np.zeros(points_m.shape[0], dtype=bool)
     crown[grouped] = at_crown_height[labels]
     column = np.flatnonzero(candidates & in_column)
@@ -308,8 +341,7 @@ def canopy_metrics(
             points_m,
             trunk_xy_m,
             candidates=candidates,
-            link_m=config.crown_link_m,
-            trunk_column_m=config.trunk_column_radius_m,
+            config=config,
         )
     kept = crown | ~candidates
     if not crown.any():
@@ -334,7 +366,9 @@ def canopy_metrics(
     along, across = crown_diameters(upper)
     return CanopyMetrics(
         height_m=height,
-        width_m=max_horizontal_distance(tree_points),
+        width_m=max_horizontal_distance(
+            tree_points, support_radius_m=config.support_radius_m, support_points=config.top_support_points
+        ),
         thickness_m=height - base_geometric,
         crown_base_m=base_geometric,
         thickness_kde_m=height - base_kde,

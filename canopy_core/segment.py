@@ -32,7 +32,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-__all__ = ["Wire", "find_wires", "tree_component", "wire_mask"]
+__all__ = ["Wire", "find_wires", "is_wire_piece", "tree_component", "wire_mask"]
 
 _TRUNK_SEED_RADIUS_M = 0.35
 """Voxels this close to the trunk's axis, in the lowest part of the cloud, belong to the tree's trunk."""
@@ -247,19 +247,69 @@ def find_wires(
     return wires
 
 
-def wire_mask(points_m: np.ndarray, wires: list[Wire], *, tolerance_m: float, spread_m: float) -> np.ndarray:
-    """Mask of the ``(N, 3)`` points of any of ``wires``: within ``tolerance_m`` of its height and
-    ``spread_m`` across it.
+def is_wire_piece(points_m: np.ndarray, *, min_length_m: float, max_thickness_m: float) -> bool:
+    """Whether the ``(N, 3)`` points of a small body lie along a straight, nearly level line at least
+    ``min_length_m`` long in plan, within ``max_thickness_m`` (RMS) of it in height: a stretch of trellis
+    wire seen apart from the rest (beside a crown, between gaps of dropout), which :func:`find_wires` may
+    miss when too little of the wire shows.
+
+    The line's direction is the points' main horizontal direction; the height is fitted along it, sloping at
+    most :data:`_SEEN_WIRE_MAX_SLOPE_DEG`. Across the line in plan the points may spread as a wire's mixed
+    pixels do; a leaf or a cluster of leaves is shorter, or not level.
+    """
+    if points_m.shape[0] < 3:
+        return False
+    plan = points_m[:, :2] - points_m[:, :2].mean(axis=0)
+    direction = np.linalg.svd(plan, full_matrices=False)[2][0]
+    along = plan @ direction
+    if np.ptp(along) < min_length_m:
+        return False
+    slope, height = np.polyfit(along, points_m[:, 2], 1)
+    rise = points_m[:, 2] - (height + slope * along)
+    return bool(
+        abs(slope) <= np.tan(np.radians(_SEEN_WIRE_MAX_SLOPE_DEG))
+        and np.sqrt(np.mean(rise**2)) <= max_thickness_m
+    )
+
+
+def wire_mask(
+    points_m: np.ndarray,
+    wires: list[Wire],
+    *,
+    tolerance_m: float,
+    spread_m: float,
+    camera_m: np.ndarray | None = None,
+) -> np.ndarray:
+    """Mask of the ``(N, 3)`` points of any of ``wires``: within ``spread_m`` across it in plan, and within
+    ``tolerance_m`` of the plane through it and the camera at ``camera_m`` (world frame) that saw the
+    points, or of its height when no camera is given.
 
     A wire is thinner than a depth pixel, so every pixel that sees it blends its depth with what lies
-    behind: its points stand off the wire along the camera's rays, which cross it nearly level, so they
-    keep its height but spread across it, each view's the other way.
+    behind: its points stand off the wire along the camera's rays through it, in the plane that holds the
+    wire and the camera's centre, each view's the other way. A camera at the wire's height sees that plane
+    level; one 1.2 m high looking at a wire 2.5 m high 3 m away sees it sloping by 23 degrees, and a mixed
+    pixel 30 cm behind the wire stands 12 cm below its height.
     """
     on_wire = np.zeros(points_m.shape[0], dtype=bool)
     for wire in wires:
         across, rise = wire.offsets_m(points_m)
-        on_wire |= (np.abs(rise) < tolerance_m) & (np.abs(across) < spread_m)
+        off_plane = rise if camera_m is None else _off_sight_plane(wire, points_m, camera_m)
+        on_wire |= (np.abs(off_plane) < tolerance_m) & (np.abs(across) < spread_m)
     return on_wire
+
+
+def _off_sight_plane(wire: Wire, points_m: np.ndarray, camera_m: np.ndarray) -> np.ndarray:
+    """Signed distance of each point from the plane holding ``wire`` and the camera centre ``camera_m``;
+    the height above the wire when the camera lies on the wire's line (no such plane)."""
+    direction = np.append(wire.direction_xy, wire.slope)
+    origin = np.append(wire.origin_xy_m, wire.height_m)
+    normal = np.cross(direction, origin - camera_m)
+    length = float(np.linalg.norm(normal))
+    if length < 1e-9:
+        return wire.offsets_m(points_m)[1]
+    normal /= length
+    normal *= np.sign(normal[2]) or 1.0
+    return (points_m - origin) @ normal
 
 
 def _chord(origin_xy: np.ndarray, direction_xy: np.ndarray, radius_m: float) -> tuple[float, float] | None:

@@ -259,7 +259,11 @@ def place_balls_and_cameras(
         shares = tuple(clean for _, clean in seen)
         if min(map(min, counts)) >= MIN_BALL_PIXELS and min(map(min, shares)) >= MIN_CLEAN_SHARE:
             return Layout(
-                balls=balls, poses=tuple(poses), ball_pixels=counts, ball_clean_shares=shares, beside_balls=beside
+                balls=balls,
+                poses=tuple(poses),
+                ball_pixels=counts,
+                ball_clean_shares=shares,
+                beside_balls=beside,
             )
     raise RuntimeError(
         f"no layout in {_LAYOUT_ATTEMPTS} attempts frames the tree and shows every ball to every view"

@@ -114,9 +114,9 @@ def test_ball_painted_grey_in_one_view_is_found_where_the_other_views_place_it(
     result = measure(grey)
     second = result.views[1]
     assert second.balls_found_by_position == ("blue",)
-    assert np.linalg.norm(
-        second.balls["blue"].center_m - native_result.views[1].balls["blue"].center_m
-    ) < 0.003
+    assert (
+        np.linalg.norm(second.balls["blue"].center_m - native_result.views[1].balls["blue"].center_m) < 0.003
+    )
 
 
 def test_one_view_capture_is_measured_in_its_own_ground_frame(tmp_path: Path) -> None:

@@ -124,8 +124,7 @@ def _crown(points: np.ndarray, foliage: np.ndarray) -> np.ndarray:
         points,
         np.zeros(2),
         candidates=candidates,
-        link_m=config.crown_link_m,
-        trunk_column_m=config.trunk_column_radius_m,
+        config=config,
     )
 
 
@@ -234,6 +233,36 @@ def test_crown_pieces_apart_from_the_rest_still_count_as_crown() -> None:
     crown = _crown(points, foliage_mask(point_colors, min_index=0.15))
     assert crown[len(tree) :].all()
     assert _metrics(points, point_colors).width_m == pytest.approx(max_horizontal_distance(points), abs=1e-9)
+
+
+def _wire_pieces(rng: np.random.Generator, z_m: float, pieces: list[tuple[float, float]]) -> np.ndarray:
+    """Stretches (x from, x to) of a trellis wire at height ``z_m`` along the row, as a view sees it beside a
+    crown: a line of points about a pixel (1 cm) apart, spread a few centimetres across by mixed pixels, level
+    within 5 mm."""
+    x = np.concatenate([rng.uniform(low, high, int((high - low) / 0.01)) for low, high in pieces])
+    return np.column_stack([x, rng.normal(0.0, 0.02, x.size), z_m + rng.normal(0.0, 0.004, x.size)])
+
+
+def test_pieces_of_a_wire_beside_the_crown_do_not_widen_it() -> None:
+    """A wire through the crown at 2.4 m, hidden inside it, seen beside it in pieces 14-35 cm long with
+    gaps wider than the link distance: pieces at crown height, apart from it, which it used to take in."""
+    rng = np.random.default_rng(25)
+    tree, colors = _leafy_tree(rng)
+    wire = _wire_pieces(rng, 2.4, [(-1.35, -1.1), (-1.0, -0.86), (0.9, 1.25)])
+    points, point_colors = _with(tree, colors, wire, (120, 120, 120))
+    metrics = _metrics(points, point_colors)
+    assert max_horizontal_distance(points) > _metrics(tree, colors).width_m + 0.5  # what was wrong
+    assert metrics.width_m == pytest.approx(_metrics(tree, colors).width_m, abs=0.01)
+
+
+def test_a_stray_pair_of_points_far_beside_the_crown_does_not_set_its_width() -> None:
+    rng = np.random.default_rng(26)
+    tree, colors = _leafy_tree(rng)
+    stray = np.array([[1.3, 0.1, 2.0], [1.31, 0.1, 2.01]])  # flying pixels, each the other's only neighbour
+    points, point_colors = _with(tree, colors, stray, LEAF)
+    width = _metrics(points, point_colors).width_m
+    assert max_horizontal_distance(points) > width + 0.3  # what was wrong
+    assert width == pytest.approx(_metrics(tree, colors).width_m, abs=1e-9)
 
 
 def test_points_without_any_crown_fail_clearly_instead_of_measuring_nothing() -> None:

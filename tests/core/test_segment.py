@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from canopy_core.metrics import canopy_height, max_horizontal_distance
-from canopy_core.segment import find_wires, tree_component, wire_mask
+from canopy_core.segment import Wire, find_wires, tree_component, wire_mask
 
 
 def _blob(rng: np.random.Generator, centre: list[float], radius: float, n: int) -> np.ndarray:
@@ -183,3 +183,23 @@ def test_wire_seen_along_the_whole_cylinder_is_removed_even_sloping_against_the_
 
     assert max_horizontal_distance(kept) == pytest.approx(max_horizontal_distance(tree), abs=0.02)
     assert canopy_height(kept) == pytest.approx(canopy_height(tree), abs=0.02)
+
+
+def test_a_wire_above_the_camera_has_its_mixed_pixels_removed_along_the_camera_rays() -> None:
+    """A camera 1.2 m high sees a wire 2.5 m high 3.5 m away: its mixed pixels lie on the rays through the
+    wire, up to 30 cm behind it, so they sink below the wire's height as they go (by up to 11 cm)."""
+    rng = np.random.default_rng(12)
+    camera = np.array([0.0, -3.5, 1.2])
+    on_wire = np.column_stack([rng.uniform(-1.4, 1.4, 400), np.zeros(400), np.full(400, 2.5)])
+    rays = on_wire - camera
+    behind = rng.uniform(0.0, 0.3, (400, 1)) * rays / np.linalg.norm(rays[:, :2], axis=1, keepdims=True)
+    mixed = on_wire + behind
+    wire = Wire(origin_xy_m=np.zeros(2), direction_xy=np.array([1.0, 0.0]), height_m=2.5, slope=0.0)
+    crown = np.array([[0.0, 0.2, 2.3], [0.5, -0.2, 2.6], [0.0, 0.0, 2.42]])  # 4-20 cm off the rays' plane
+
+    seen_from_camera = wire_mask(mixed, [wire], tolerance_m=0.03, spread_m=0.3, camera_m=camera)
+    level = wire_mask(mixed, [wire], tolerance_m=0.03, spread_m=0.3)
+
+    assert seen_from_camera.all()
+    assert level.mean() < 0.5  # what was wrong: a level band keeps the mixed pixels far behind the wire
+    assert not wire_mask(crown, [wire], tolerance_m=0.03, spread_m=0.3, camera_m=camera).any()

@@ -216,7 +216,8 @@ def test_every_view_frames_the_whole_tree_and_sees_every_ball() -> None:
     layout = place_balls_and_cameras(
         np.random.default_rng(8), orchard, raycaster, rig, n_views=3, native_color=True
     )
-    for pose, ball_pixels, shares in zip(layout.poses, layout.ball_pixels, layout.ball_clean_shares, strict=True):
+    seen = zip(layout.poses, layout.ball_pixels, layout.ball_clean_shares, strict=True)
+    for pose, ball_pixels, shares in seen:
         pixels, depth = project(pose, rig.depth, orchard.main_tree.mesh.vertices)
         assert (depth > 0).all()
         assert pixels.min() >= 0 and (pixels.max(axis=0) <= [rig.depth.width - 1, rig.depth.height - 1]).all()
