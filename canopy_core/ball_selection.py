@@ -37,6 +37,13 @@ _CANDIDATES_PER_COLOR = 4
 """The likeliest plausible spheres per colour and view that the joint choice considers (4³ triangles)."""
 _ANCHORS = 2
 """The likeliest whole triangles per view that place the balls missing from other views."""
+_CIRCLE_STEP_RADII = 0.25
+"""Along a circle where a missing ball may lie, the surface support of a ball is weighed every this many ball
+radii (a guess this close to a ball's centre finds most of its surface)."""
+_CIRCLE_SLACK_M = 0.02
+"""A circle's point is also tried this far out, in, up and down."""
+_CIRCLE_TRIES = 6
+"""Most places along a view's circles for one ball where a sphere is fitted (the best supported)."""
 _PLACEMENT_TOLERANCE_M = 0.05
 """A sphere found this close to where the other views place a ball is that ball: the placement errs by the
 ground's unevenness under the balls and the plane's error, a few centimetres."""
@@ -197,10 +204,19 @@ def select_balls(
     per_view = [_assignments(shortlist, config) for shortlist in shortlists]
     chosen = _consistent_choice(per_view, config) if all(per_view) else None
     rescued: list[list[BallCandidate]] = [[] for _ in views]
-    if chosen is None and len(views) > 1 and len(config.colors) >= 3:
-        rescued = _search_where_placed(views, shortlists, per_view, grounds, config)
+    if chosen is not None or len(views) < 2 or len(config.colors) < 3:
+        searches = []
+    else:
+        searches = [_search_where_placed, _search_on_circles, _search_where_placed]
+    for search in searches:
+        # Where the other views place a missing ball; failing that, at the distance another view puts it
+        # from a ball this view has (which may complete a triangle that places the rest).
+        found = search(views, shortlists, per_view, grounds, config)
+        rescued = [before + more for before, more in zip(rescued, found, strict=True)]
         per_view = [_assignments(shortlist, config) for shortlist in shortlists]
         chosen = _consistent_choice(per_view, config) if all(per_view) else None
+        if chosen is not None:
+            break
     for view, shortlist, triangles in zip(views, shortlists, per_view, strict=True):
         if not triangles:
             raise _first_missing(view, shortlist, config)
@@ -258,6 +274,132 @@ def _search_where_placed(
                     known.append(found)
                     added[target].append(found)
     return added
+
+
+def _search_on_circles(
+    views: Sequence[ViewBallCandidates],
+    shortlists: list[_Shortlist],
+    per_view: list[list[tuple[float, tuple[BallCandidate, ...]]]],
+    grounds: Sequence[GroundPlane | None],
+    config: BallConfig,
+) -> list[list[BallCandidate]]:
+    """Look for a view's missing ball at the distance another view shows between it and a ball this view
+    has: on a circle round that ball, at its height above the ground plane (:func:`_circle`). A sphere
+    found there (:meth:`ViewBallCandidates.sphere_near`, where the circle's points have the most surface
+    support, :func:`_likeliest_on_circles`) joins the colour's shortlist.
+
+    For a view that found one or two balls where no view found all three (so nothing places the rest):
+    the sphere found on the circle completes a triangle, which must then agree with the other views, or
+    place their missing balls where spheres must be found in turn. Returns, per view, the spheres added.
+    """
+    del per_view  # the circles need pairs of balls, not whole triangles
+    added: list[list[BallCandidate]] = [[] for _ in views]
+    for target, (view, shortlist, ground) in enumerate(zip(views, shortlists, grounds, strict=True)):
+        if ground is None:
+            continue
+        for color in config.colors:
+            if shortlist.plausible[color]:
+                continue
+            circles = _circles(target, color, shortlists, grounds, ground, config)
+            for estimate, reach, centre in _likeliest_on_circles(view, circles, color, ground, config):
+                found = view.sphere_near(estimate, color, config)
+                if found is None or any(
+                    np.linalg.norm(found.fit.center_m - c.fit.center_m) < config.radius_m
+                    for c in shortlist.plausible[color]
+                ):
+                    continue
+                if abs(float(np.linalg.norm(found.fit.center_m - centre)) - reach) < (
+                    config.max_distance_mismatch_m
+                ):
+                    shortlist.plausible[color].append(found)
+                    added[target].append(found)
+    return added
+
+
+def _likeliest_on_circles(
+    view: ViewBallCandidates,
+    points: list[tuple[np.ndarray, float, np.ndarray]],
+    color: str,
+    ground: GroundPlane,
+    config: BallConfig,
+) -> list[tuple[np.ndarray, float, np.ndarray]]:
+    """The points of the circles (see :func:`_circles`) worth fitting a sphere at, each moved within
+    ``_CIRCLE_SLACK_M`` (out, in, up, down: the circle errs by the other view's fits and the ground's
+    unevenness) to where a ``color`` ball's surface support (:meth:`ViewBallCandidates.surface_support`) is
+    best; those reaching ``config.min_completeness_where_placed``, best first, each at least a radius from a
+    better one, at most ``_CIRCLE_TRIES``."""
+    if not points:
+        return []
+    normal = ground.normal / np.linalg.norm(ground.normal)
+    shifts = [np.zeros(3)]
+    shifts += [sign * _CIRCLE_SLACK_M * normal for sign in (-1.0, 1.0)]
+    estimates: list[np.ndarray] = []
+    outward: list[np.ndarray] = []
+    for point, _, centre in points:
+        radial = point - centre - ((point - centre) @ normal) * normal
+        radial /= max(float(np.linalg.norm(radial)), 1e-9)
+        outward.append(radial)
+    for radial_sign in (0.0, -1.0, 1.0):
+        for shift in shifts:
+            estimates.extend(
+                point + shift + radial_sign * _CIRCLE_SLACK_M * radial
+                for (point, _, _), radial in zip(points, outward, strict=True)
+            )
+    support = view.surface_support(np.array(estimates), config, color=color, ground=ground)
+    best = support.reshape(-1, len(points)).argmax(axis=0)
+    support = support.reshape(-1, len(points)).max(axis=0)
+    chosen: list[tuple[np.ndarray, float, np.ndarray]] = []
+    for index in np.argsort(-support, kind="stable"):
+        if support[index] < config.min_completeness_where_placed or len(chosen) == _CIRCLE_TRIES:
+            break
+        estimate = estimates[best[index] * len(points) + index]
+        if all(np.linalg.norm(estimate - point) >= config.radius_m for point, _, _ in chosen):
+            chosen.append((estimate, points[index][1], points[index][2]))
+    return chosen
+
+
+def _circles(
+    target: int,
+    color: str,
+    shortlists: list[_Shortlist],
+    grounds: Sequence[GroundPlane | None],
+    ground: GroundPlane,
+    config: BallConfig,
+) -> list[tuple[np.ndarray, float, np.ndarray]]:
+    """Points to look for view ``target``'s ``color`` ball at: for each ball this view has (its likeliest
+    sphere) that another view shows together with ``color`` (their likeliest spheres), the circle of the
+    points at their distance from it, at the height above this view's ground plane that the other view's
+    ground puts it relative to that ball; sampled every ``_CIRCLE_STEP_RADII`` radii. Each point comes with
+    the distance it must keep from the ball's centre and that centre."""
+    normal = ground.normal / np.linalg.norm(ground.normal)
+    axis_u = np.cross(normal, [1.0, 0.0, 0.0] if abs(normal[0]) < 0.9 else [0.0, 1.0, 0.0])
+    axis_u /= np.linalg.norm(axis_u)
+    axis_v = np.cross(normal, axis_u)
+    points: list[tuple[np.ndarray, float, np.ndarray]] = []
+    for other, (anchor, anchor_ground) in enumerate(zip(shortlists, grounds, strict=True)):
+        if other == target or not anchor.plausible[color]:
+            continue
+        wanted = anchor.plausible[color][0].fit.center_m
+        for known in config.colors:
+            if known == color or not anchor.plausible[known] or not shortlists[target].plausible[known]:
+                continue
+            seen = anchor.plausible[known][0].fit.center_m
+            reach = float(np.linalg.norm(wanted - seen))
+            rise = (
+                0.0
+                if anchor_ground is None
+                else anchor_ground.height_of(wanted) - anchor_ground.height_of(seen)
+            )
+            if reach <= abs(rise):
+                continue
+            centre = shortlists[target].plausible[known][0].fit.center_m
+            middle = centre + rise * normal
+            spread = float(np.sqrt(reach**2 - rise**2))
+            angles = np.arange(0.0, 2 * np.pi, _CIRCLE_STEP_RADII * config.radius_m / spread)
+            points.extend(
+                (middle + spread * (np.cos(a) * axis_u + np.sin(a) * axis_v), reach, centre) for a in angles
+            )
+    return points
 
 
 def _placements(

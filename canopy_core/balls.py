@@ -28,6 +28,7 @@ from scipy.spatial import cKDTree
 from canopy_core.backproject import ViewCloud
 from canopy_core.config import BallConfig
 from canopy_core.errors import BallNotFound
+from canopy_core.ground import GroundPlane
 from canopy_core.spheres import SphereFit, ransac_centre, refine_sphere, sphere_inliers
 
 __all__ = [
@@ -86,6 +87,11 @@ rarely gains more than a third of the inliers."""
 _BESIDE_RADII = 3.0
 """A sphere touching another is looked for among the points within this many radii of the other's centre
 (a ball's far side lies 3 radii from the centre of an apple or ball touching it)."""
+_SUPPORT_SLACK = 2.0
+"""Surface support counts points within this many inlier tolerances of a guessed sphere's surface: a guess a
+centimetre off the centre still finds most of a ball's points."""
+_SUPPORT_REACH_M = 0.05
+"""Surface support looks this far beyond a guessed sphere's radius (more than the slack at any range)."""
 _OUTLINE_RADII = 1.8
 """Coverage is judged on the pixels within this many projected radii of the fitted centre."""
 _RADIUS_SPREAD = 0.05
@@ -204,6 +210,51 @@ class ViewBallCandidates:
             if candidate is not None and candidate.problem is None:
                 return candidate
         return None
+
+    def surface_support(
+        self,
+        centres_m: np.ndarray,
+        config: BallConfig,
+        *,
+        color: str | None = None,
+        ground: GroundPlane | None = None,
+    ) -> np.ndarray:
+        """For each of ``(N, 3)`` possible ball centres, the points on the surface of a ball there (within
+        ``_SUPPORT_SLACK`` inlier tolerances: the centre is a guess) less those inside it (a ball hides what
+        is behind its surface), over the pixels such a ball covers: about 0.5-1 where a ball is seen whole,
+        0 or less on open ground, grass or leaves. A quick screen of many places before spheres are fitted
+        at the likeliest.
+
+        With ``color``, only surface points that may have it count (likelihood ``_MAYBE_LIKELIHOOD`` or
+        more, or unseen by the colour camera), as for a sphere's points in :func:`_candidate_at`. With the
+        view's ``ground`` plane, only points higher than half a radius above it count: the ground round a
+        ball's foot lies near its surface too.
+        """
+        if self.scene is None or centres_m.shape[0] == 0:
+            return np.zeros(centres_m.shape[0])
+        cloud = self.scene.cloud
+        radius = config.radius_m
+        low, high = centres_m.min(axis=0) - 2 * radius, centres_m.max(axis=0) + 2 * radius
+        nearby = np.flatnonzero(((cloud.points_m >= low) & (cloud.points_m <= high)).all(axis=1))
+        if ground is not None:
+            nearby = nearby[(cloud.points_m[nearby] - ground.point_m) @ ground.normal > radius / 2]
+        if nearby.size == 0:
+            return np.zeros(centres_m.shape[0])
+        points = cloud.points_m[nearby]
+        may_be = np.ones(nearby.size, dtype=bool)
+        if color is not None:
+            likely = self.scene.likelihood[config.colors.index(color), nearby] >= _MAYBE_LIKELIHOOD
+            may_be = likely | ~cloud.has_color[nearby]
+        tree = cKDTree(points)
+        support = np.empty(centres_m.shape[0])
+        reach = tree.query_ball_point(centres_m, r=radius + _SUPPORT_REACH_M)
+        for i, (centre, close) in enumerate(zip(centres_m, reach, strict=True)):
+            tolerance = _SUPPORT_SLACK * _range_tolerance(config.inlier_tolerance_m, centre)
+            distance = np.linalg.norm(points[close] - centre, axis=1)
+            on = np.count_nonzero((np.abs(distance - radius) < tolerance) & may_be[close])
+            inside = np.count_nonzero(distance < radius - tolerance)
+            support[i] = (on - inside) / max(self.scene.pixels_of_ball(centre, radius), 1.0)
+        return support
 
     def ranked(self, color: str, config: BallConfig) -> list[BallCandidate]:
         """The candidates for ``color``: plausible ones first, each group likeliest first."""
@@ -361,10 +412,12 @@ def find_ball_candidates(cloud: ViewCloud, config: BallConfig) -> ViewBallCandid
             continue
         peaks = _vote_peaks(votes[of_color], scene.likelihood[i, seeds[of_color]], scene, config.radius_m)
         _add_candidates(candidates, peaks, i, scene, config)
-        if not any(c.objection(color, config) is None for c in candidates):
-            sure = seeds[scene.likelihood[i, seeds] >= _SURE_LIKELIHOOD]
+        for least in (_SURE_LIKELIHOOD, _SEED_LIKELIHOOD):
+            if any(c.objection(color, config) is None for c in candidates):
+                break
+            grouped = seeds[scene.likelihood[i, seeds] >= least]
             blobs = _blob_centres(
-                cloud.points_m[sure], cloud.pixels[sure], config.radius_m, config.min_points
+                cloud.points_m[grouped], cloud.pixels[grouped], config.radius_m, config.min_points
             )
             _add_candidates(candidates, blobs, i, scene, config)
     return ViewBallCandidates(

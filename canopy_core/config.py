@@ -260,6 +260,17 @@ class IcpConfig(_Section):
         0.01, gt=0.0, description="A refinement moving any ball centre farther than this is rejected."
     )
     max_rotation_deg: float = Field(0.5, gt=0.0, description="A refinement turning a view more is rejected.")
+    max_ball_shift_found_by_position_m: float = Field(
+        0.05,
+        gt=0.0,
+        description="As max_ball_shift_m, for a view whose balls, or the reference view's, include one found "
+        "where the other views place it: a fragment of a ball, whose centre is known to a few centimetres.",
+    )
+    max_rotation_found_by_position_deg: float = Field(
+        3.0,
+        gt=0.0,
+        description="As max_rotation_deg, for such a view: a few centimetres at balls 0.6-1.5 m apart.",
+    )
 
 
 class MetricsConfig(_Section):

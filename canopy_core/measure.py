@@ -262,6 +262,7 @@ def measure(
             [v.name for v in capture.views],
             [points[points[:, 2] < config.icp.max_height_m] for points in roi_points],
             view_anchors_m=[apply(pose, c) for pose, c in zip(world_from_view, centres, strict=True)],
+            found_by_position=[bool(choice.found_by_position) for choice in choices],
             config=config.icp,
         )
         roi_points = [apply(c, p) for c, p in zip(corrections, roi_points, strict=True)]

@@ -164,7 +164,12 @@ def _skew(v: np.ndarray) -> np.ndarray:
 
 
 def refine_views(
-    view_names: list[str], points_m: list[np.ndarray], *, view_anchors_m: list[np.ndarray], config: IcpConfig
+    view_names: list[str],
+    points_m: list[np.ndarray],
+    *,
+    view_anchors_m: list[np.ndarray],
+    found_by_position: list[bool] | None = None,
+    config: IcpConfig,
 ) -> tuple[list[np.ndarray], list[IcpRefinement]]:
     """Refine the poses of views already brought into one frame by the balls.
 
@@ -178,6 +183,11 @@ def refine_views(
         Each view's own ball centres mapped into the common frame by its ball pose (matching rows). ICP
         holds them to the reference's, and a refinement may not move them farther than
         ``config.max_ball_shift_m``: the balls registered each view to within a few millimetres.
+    found_by_position
+        Per view, whether one of its balls was found where the other views place it (a fragment of the
+        ball, fitted to a few centimetres). A view with one, and every view when the reference has one, may
+        move and turn as far as ``config.max_ball_shift_found_by_position_m`` and
+        ``config.max_rotation_found_by_position_deg``. None: no view has one.
     config
         ICP settings and the acceptance bounds.
 
@@ -213,13 +223,18 @@ def refine_views(
         translation, rotation = pose_change(np.eye(4), correction)
         anchors = view_anchors_m[index]
         ball_shift = float(np.linalg.norm(apply(correction, anchors) - anchors, axis=1).max())
-        if ball_shift > config.max_ball_shift_m or rotation > config.max_rotation_deg:
+        loose = found_by_position is not None and (found_by_position[index] or found_by_position[0])
+        max_shift, max_turn = (
+            (config.max_ball_shift_found_by_position_m, config.max_rotation_found_by_position_deg)
+            if loose
+            else (config.max_ball_shift_m, config.max_rotation_deg)
+        )
+        if ball_shift > max_shift or rotation > max_turn:
             accepted, reason = (
                 False,
                 (
                     f"would move the balls by {ball_shift * 1000:.0f} mm and turn the view "
-                    f"{rotation:.2f} deg, more than the {config.max_ball_shift_m * 1000:.0f} mm / "
-                    f"{config.max_rotation_deg:.1f} deg "
+                    f"{rotation:.2f} deg, more than the {max_shift * 1000:.0f} mm / {max_turn:.1f} deg "
                     "the ball registration leaves open"
                 ),
             )

@@ -147,3 +147,52 @@ def test_a_ball_found_in_no_view_by_its_colour_is_not_placed_without_a_whole_tri
         select_balls(views, config, grounds=[_ground(1), _ground(1)])
 
     assert caught.value.color == "blue"
+
+
+def _darkened(cloud: ViewCloud, centre: np.ndarray) -> ViewCloud:
+    """The view with the ball at ``centre`` nearly black (deep shade): its shape stays, its hue is gone."""
+    near = np.linalg.norm(cloud.points_m - centre, axis=1) < 0.06
+    colors = cloud.colors_rgb.copy()
+    colors[near] = (colors[near] * 0.04).astype(np.uint8)
+    return ViewCloud(cloud.view, cloud.points_m, colors, cloud.has_color, cloud.pixels)
+
+
+def test_balls_in_shade_in_different_views_are_found_at_the_distances_the_other_view_shows() -> None:
+    """No view shows all three balls by colour (blue is in shade in view 1, yellow in view 2), so no
+    triangle places the missing ones. Each is sought on the circle round the red ball at the distance the
+    other view shows between them; the triangle so completed must agree with the other view."""
+    first, truth_1 = _view(1, [], [], seed=7)
+    second, truth_2 = _view(2, [], [], seed=8)
+    config = BallConfig()
+    views = [
+        find_ball_candidates(_darkened(first, truth_1["blue"]), config),
+        find_ball_candidates(_darkened(second, truth_2["yellow"]), config),
+    ]
+
+    chosen = select_balls(views, config, grounds=[_ground(1), _ground(2)])
+
+    assert chosen[0].found_by_position == ("blue",) and chosen[1].found_by_position == ("yellow",)
+    for choice, truth in zip(chosen, (truth_1, truth_2), strict=True):
+        for color in COLORS:
+            assert np.linalg.norm(choice.chosen[color].fit.center_m - truth[color]) < 0.004, color
+
+
+def test_a_ball_missing_from_a_view_is_not_invented_on_the_circle_where_nothing_lies() -> None:
+    """The blue ball taken away in view 1 and darkened in view 2: the circles round the other balls hold no
+    sphere, and the measurement stops naming the view and ball."""
+    first, truth_1 = _view(1, [], [], seed=7)
+    second, truth_2 = _view(2, [], [], seed=8)
+    away = np.linalg.norm(first.points_m - truth_1["blue"], axis=1) >= 0.07
+    kicked = ViewCloud(
+        first.view, first.points_m[away], first.colors_rgb[away], first.has_color[away], first.pixels[away]
+    )
+    config = BallConfig()
+    views = [
+        find_ball_candidates(kicked, config),
+        find_ball_candidates(_darkened(second, truth_2["yellow"]), config),
+    ]
+
+    with pytest.raises(BallNotFound) as caught:
+        select_balls(views, config, grounds=[_ground(1), _ground(2)])
+
+    assert caught.value.view == "views/1" and caught.value.color == "blue"
