@@ -245,16 +245,18 @@ class ViewBallCandidates:
         if color is not None:
             likely = self.scene.likelihood[config.colors.index(color), nearby] >= _MAYBE_LIKELIHOOD
             may_be = likely | ~cloud.has_color[nearby]
-        tree = cKDTree(points)
-        support = np.empty(centres_m.shape[0])
-        reach = tree.query_ball_point(centres_m, r=radius + _SUPPORT_REACH_M)
-        for i, (centre, close) in enumerate(zip(centres_m, reach, strict=True)):
-            tolerance = _SUPPORT_SLACK * _range_tolerance(config.inlier_tolerance_m, centre)
-            distance = np.linalg.norm(points[close] - centre, axis=1)
-            on = np.count_nonzero((np.abs(distance - radius) < tolerance) & may_be[close])
-            inside = np.count_nonzero(distance < radius - tolerance)
-            support[i] = (on - inside) / max(self.scene.pixels_of_ball(centre, radius), 1.0)
-        return support
+        close = cKDTree(points).query_ball_point(centres_m, r=radius + _SUPPORT_REACH_M)
+        owner = np.repeat(np.arange(centres_m.shape[0]), [len(indices) for indices in close])
+        neighbour = np.concatenate([np.asarray(indices, dtype=np.int64) for indices in close])
+        distance = np.linalg.norm(points[neighbour] - centres_m[owner], axis=1)
+        tolerance = _SUPPORT_SLACK * _range_tolerances(config.inlier_tolerance_m, centres_m)[owner]
+        on = (np.abs(distance - radius) < tolerance) & may_be[neighbour]
+        inside = distance < radius - tolerance
+        count = centres_m.shape[0]
+        surplus = np.bincount(owner, weights=on, minlength=count) - np.bincount(
+            owner, weights=inside, minlength=count
+        )
+        return surplus / np.maximum(self.scene.pixels_of_balls(centres_m, radius), 1.0)
 
     def ranked(self, color: str, config: BallConfig) -> list[BallCandidate]:
         """The candidates for ``color``: plausible ones first, each group likeliest first."""
@@ -819,7 +821,13 @@ def _fit_near(
 
 def _range_tolerance(tolerance_m: float, centre: np.ndarray) -> float:
     """The inlier tolerance for a ball at ``centre`` (camera frame): widened as range² past the reference."""
-    return tolerance_m * max(1.0, (float(np.linalg.norm(centre)) / _TOLERANCE_REFERENCE_RANGE_M) ** 2)
+    return float(_range_tolerances(tolerance_m, centre[None, :])[0])
+
+
+def _range_tolerances(tolerance_m: float, centres_m: np.ndarray) -> np.ndarray:
+    """:func:`_range_tolerance` for each of ``(N, 3)`` centres."""
+    ranges = np.linalg.norm(centres_m, axis=1)
+    return tolerance_m * np.maximum(1.0, (ranges / _TOLERANCE_REFERENCE_RANGE_M) ** 2)
 
 
 def _geometry_problem(fit: SphereFit, config: BallConfig, *, expected_points: float) -> Objection | None:
