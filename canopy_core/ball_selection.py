@@ -202,15 +202,19 @@ def select_balls(
         _shortlist(view, config, ground=ground) for view, ground in zip(views, grounds, strict=True)
     ]
     per_view = [_assignments(shortlist, config) for shortlist in shortlists]
-    chosen = _consistent_choice(per_view, config) if all(per_view) else None
     rescued: list[list[BallCandidate]] = [[] for _ in views]
-    if chosen is not None or len(views) < 2 or len(config.colors) < 3:
-        searches = []
-    else:
-        searches = [_search_where_placed, _search_on_circles, _search_where_placed]
+    # The likeliest triangles of each view place the balls in the others first, even where some combination
+    # agrees already: a look-alike that both views see (an apple lying on the ground) agrees too, and must
+    # compete with a ball one view sees whole and another only in part. Only if no combination agrees then,
+    # a missing ball is sought at the distance another view puts it from a ball this view has (which may
+    # complete a triangle that places the rest).
+    searches = (
+        (_search_where_placed, _search_on_circles, _search_where_placed)
+        if len(views) > 1 and len(config.colors) >= 3
+        else ()
+    )
+    chosen = None if searches or not all(per_view) else _consistent_choice(per_view, config)
     for search in searches:
-        # Where the other views place a missing ball; failing that, at the distance another view puts it
-        # from a ball this view has (which may complete a triangle that places the rest).
         found = search(views, shortlists, per_view, grounds, config)
         rescued = [before + more for before, more in zip(rescued, found, strict=True)]
         per_view = [_assignments(shortlist, config) for shortlist in shortlists]

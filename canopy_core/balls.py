@@ -71,7 +71,13 @@ _VOTES_PER_BALL = 300.0
 _MAX_PEAK_VOTES = 2000
 """At most this many of the strongest votes are weighed as peaks (each costs a neighbour query)."""
 _MAX_PEAKS = 8
-"""At most this many vote peaks per colour and view are fitted (bounds the time per view)."""
+"""At most this many vote peaks per colour and view resting on the ground are fitted (bounds the time per
+view); and compact groups of a colour."""
+_MAX_FLOATING_PEAKS = 2
+"""At most this many vote peaks above the ground are fitted per colour and view, after those on it: enough
+to tell the crew that the likeliest sphere of a missing ball's colour hangs in the crown."""
+_MAX_VOTE_PEAKS = 24
+"""Vote peaks are taken, strongest first, up to this many before they are sorted by where they stand."""
 _NEAR_RADII = 1.6
 """A peak's sphere is fitted to the points within this many radii of it (its centre is a few cm off)."""
 _SURE_LIKELIHOOD = 0.9
@@ -131,7 +137,8 @@ class BallCandidate:
         Pixels a ball of the nominal radius at the fitted centre covers.
     color_scores
         Per configured colour, the mean colour likelihood of the sphere's points that the colour camera
-        sees (0: none has that colour, 1: all of them, fully).
+        sees, whatever their brightness (0: none has that colour, 1: all of them, fully): a ball in
+        deep shade is still of its colour.
     problem
         Why the sphere's geometry is not a ball's (too few points, radius, residual, coverage), or None.
     """
@@ -350,8 +357,11 @@ def _to_hsv(colors_rgb: np.ndarray) -> np.ndarray:
     return cv2.cvtColor(colors[:, None, :], cv2.COLOR_RGB2HSV).reshape(-1, 3)
 
 
-def _likelihood(hsv: np.ndarray, hsv_range: list[list[int]], *, hue_spread: float | None) -> np.ndarray:
-    """The colour likelihood of HSV values; with ``hue_spread`` None, 1 inside the range and 0 outside."""
+def _likelihood(
+    hsv: np.ndarray, hsv_range: list[list[int]], *, hue_spread: float | None, lit: bool = True
+) -> np.ndarray:
+    """The colour likelihood of HSV values; with ``hue_spread`` None, 1 inside the range and 0 outside.
+    With ``lit`` False, brightness is left out: the likelihood of the colour whatever the light."""
     (h_low, s_low, v_low), (h_high, s_high, v_high) = hsv_range
     hue, saturation, value = (hsv[:, i].astype(np.float32) for i in range(3))
     inside_hue = (hue >= h_low) & (hue <= h_high) if h_low <= h_high else (hue >= h_low) | (hue <= h_high)
@@ -361,7 +371,8 @@ def _likelihood(hsv: np.ndarray, hsv_range: list[list[int]], *, hue_spread: floa
     distance = np.minimum(_hue_distance(hue, h_low), _hue_distance(hue, h_high))
     hue_term = np.where(inside_hue, 1.0, np.exp(-0.5 * (distance / hue_spread) ** 2))
     saturation_term = _band_term(saturation, s_low, s_high) ** _SATURATION_FALL
-    return (hue_term * saturation_term * _band_term(value, v_low, v_high)).astype(np.float32)
+    value_term = _band_term(value, v_low, v_high) if lit else 1.0
+    return (hue_term * saturation_term * value_term).astype(np.float32)
 
 
 def _hue_distance(hue: np.ndarray, bound: float) -> np.ndarray:
@@ -377,7 +388,9 @@ def _band_term(channel: np.ndarray, low: float, high: float) -> np.ndarray:
     return np.clip(np.minimum(below, above), 0.0, 1.0)
 
 
-def find_ball_candidates(cloud: ViewCloud, config: BallConfig) -> ViewBallCandidates:
+def find_ball_candidates(
+    cloud: ViewCloud, config: BallConfig, *, ground: GroundPlane | None = None
+) -> ViewBallCandidates:
     """Find every sphere of about the balls' radius among the points of the balls' colours in one view.
 
     Parameters
@@ -386,6 +399,11 @@ def find_ball_candidates(cloud: ViewCloud, config: BallConfig) -> ViewBallCandid
         The view's back-projected points, filtered or not (the fit copes with flying pixels itself).
     config
         Ball size, colours and detection thresholds.
+    ground
+        The view's ground plane, if known: vote peaks resting on it are fitted first (``_MAX_PEAKS`` of
+        them), those standing higher than a ball can (apples in a crown) only after them
+        (``_MAX_FLOATING_PEAKS``), so that a crown full of apples of a ball's colour does not use up the
+        tries before the ball on the ground.
 
     Returns
     -------
@@ -408,15 +426,17 @@ def find_ball_candidates(cloud: ViewCloud, config: BallConfig) -> ViewBallCandid
     seeds, normals = seeds[ok], normals[ok]
     votes = cloud.points_m[seeds] - config.radius_m * normals
     candidates: list[BallCandidate] = []
-    for i, color in enumerate(config.colors):
+    for i in range(len(config.colors)):
         of_color = scene.likelihood[i, seeds] >= _SEED_LIKELIHOOD
         if np.count_nonzero(of_color) < config.min_points:
             continue
-        peaks = _vote_peaks(votes[of_color], scene.likelihood[i, seeds[of_color]], scene, config.radius_m)
+        peaks = _grounded_first(
+            _vote_peaks(votes[of_color], scene.likelihood[i, seeds[of_color]], scene, config.radius_m),
+            ground,
+            config,
+        )
         _add_candidates(candidates, peaks, i, scene, config)
         for least in (_SURE_LIKELIHOOD, _SEED_LIKELIHOOD):
-            if any(c.objection(color, config) is None for c in candidates):
-                break
             grouped = seeds[scene.likelihood[i, seeds] >= least]
             blobs = _blob_centres(
                 cloud.points_m[grouped], cloud.pixels[grouped], config.radius_m, config.min_points
@@ -526,6 +546,9 @@ class _Scene:
     cloud: ViewCloud
     likelihood: np.ndarray
     """``(colours, N)`` colour likelihood of each point for each configured colour (0 without colour)."""
+    chroma: np.ndarray
+    """As ``likelihood`` but whatever the brightness (hue and saturation only): which colour a sphere found
+    by its shape has. A ball in deep shade keeps its hue; its brightness says how it is lit."""
     point_at_pixel: np.ndarray
     """Depth-image-shaped index of each pixel's point, -1 where none."""
     focal_px: tuple[float, float]
@@ -539,18 +562,24 @@ class _Scene:
         point_at_pixel = np.full(shape, -1, dtype=np.int64)
         point_at_pixel[rows, cols] = np.arange(len(cloud))
         hsv = _to_hsv(cloud.colors_rgb)
-        likelihood = np.stack(
-            [
-                np.where(
-                    cloud.has_color, _likelihood(hsv, config.hsv_range(c), hue_spread=config.hue_spread), 0
-                )
-                for c in config.colors
-            ]
+        likelihood, chroma = (
+            np.stack(
+                [
+                    np.where(
+                        cloud.has_color,
+                        _likelihood(hsv, config.hsv_range(c), hue_spread=config.hue_spread, lit=lit),
+                        0,
+                    )
+                    for c in config.colors
+                ]
+            )
+            for lit in (True, False)
         )
         focal, centre = _intrinsics(cloud)
         return cls(
             cloud=cloud,
             likelihood=likelihood,
+            chroma=chroma,
             point_at_pixel=point_at_pixel,
             focal_px=focal,
             centre_px=centre,
@@ -665,9 +694,23 @@ def _vote_peaks(votes: np.ndarray, weights: np.ndarray, scene: _Scene, radius_m:
             continue
         peaks.append(votes[members[rank]].mean(axis=0))
         suppressed[tree.query_ball_point(votes[index], r=radius_m)] = True
-        if len(peaks) == _MAX_PEAKS:
+        if len(peaks) == _MAX_VOTE_PEAKS:
             break
     return peaks
+
+
+def _grounded_first(
+    peaks: list[np.ndarray], ground: GroundPlane | None, config: BallConfig
+) -> list[np.ndarray]:
+    """The peaks resting on the ground (at most ``_MAX_PEAKS``, in order), then those standing higher than
+    ``config.max_ground_gap_m`` above a ball's height (at most ``_MAX_FLOATING_PEAKS``); all peaks, up to
+    ``_MAX_PEAKS``, when no ground is known."""
+    if ground is None:
+        return peaks[:_MAX_PEAKS]
+    floating = [ground.height_of(peak) - config.radius_m > config.max_ground_gap_m for peak in peaks]
+    resting = [peak for peak, high in zip(peaks, floating, strict=True) if not high]
+    above = [peak for peak, high in zip(peaks, floating, strict=True) if high]
+    return resting[:_MAX_PEAKS] + above[:_MAX_FLOATING_PEAKS]
 
 
 def _blob_centres(
@@ -781,7 +824,7 @@ def _described(
     on_sphere = maybe_indices[sphere_inliers(maybe, np.append(fit.center_m, radius), tolerance, minimum=0)]
     colored = on_sphere[scene.cloud.has_color[on_sphere]]
     scores = {
-        name: float(scene.likelihood[i, colored].mean()) if colored.size else 0.0
+        name: float(scene.chroma[i, colored].mean()) if colored.size else 0.0
         for i, name in enumerate(config.colors)
     }
     fit = replace(fit, points=max(fit.points, int(on_sphere.size)))

@@ -312,6 +312,12 @@ class MetricsConfig(_Section):
         description="Foliage this close to the trunk's axis (suckers, bark coloured by the leaves behind it) "
         "joins the crown only within crown_link_m of it, and never links anything to it (weeds at the foot).",
     )
+    crown_piece_min_voxels: int = Field(
+        5,
+        ge=1,
+        description="A body apart from the crown's main body counts as crown only with at least this many "
+        "occupied 4 cm voxels (a cluster of leaves); fewer is a speck: flying pixels, a glint of wire.",
+    )
     wire_piece_min_length_m: float = Field(
         0.1,
         gt=0.0,

@@ -335,13 +335,15 @@ def ball_evidence(
 ) -> tuple[list[ViewBallCandidates], list[GroundPlane | None]]:
     """What the balls are chosen from: each view's spheres and its ground plane (None where none is
     found), as the measurement and ``canopy balls`` both need them."""
-    return (
-        [find_ball_candidates(cloud, config.balls) for cloud in clouds],
-        [
-            view_ground_plane(cloud.points_m, up_hint=CAMERA_UP, tolerance_m=config.ground.inlier_tolerance_m)
-            for cloud in clouds
-        ],
-    )
+    grounds = [
+        view_ground_plane(cloud.points_m, up_hint=CAMERA_UP, tolerance_m=config.ground.inlier_tolerance_m)
+        for cloud in clouds
+    ]
+    candidates = [
+        find_ball_candidates(cloud, config.balls, ground=ground)
+        for cloud, ground in zip(clouds, grounds, strict=True)
+    ]
+    return candidates, grounds
 
 
 def _modes(

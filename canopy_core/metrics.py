@@ -198,8 +198,9 @@ def crown_mask(
     height, that is with at least half of its own height above the largest body's lowest point: pieces of
     the crown apart from the rest (a sparse cluster, the top leaves) are; ground vegetation, suckers, fallen
     fruit and stray points below the crown, which the bare trunk separates from it, are not, even where they
-    reach up to its lowest leaves. Nor is a body that is a level straight line longer than a leaf (a piece
-    of trellis wire beside the crown that the wire search missed; see
+    reach up to its lowest leaves. Nor is a speck of fewer than ``config.crown_piece_min_voxels`` voxels
+    apart from the rest (flying pixels, a glint of wire), nor a body that is a level straight line longer
+    than a leaf (a piece of trellis wire beside the crown that the wire search missed; see
     :func:`canopy_core.segment.is_wire_piece`). Candidates inside the column (within
     ``config.trunk_column_radius_m`` of the trunk's axis: suckers, leaves next to the trunk, bark coloured
     by the leaves behind it) join the crown when they are within the link distance of it, but never link
@@ -237,6 +238,7 @@ def crown_mask(
     main = int(np.argmax(voxels))
     at_crown_height = top - np.maximum(bottom, bottom[main]) >= _CROWN_SHARE_ABOVE * (top - bottom)
     ends = np.r_[starts[1:], order.size]
+    at_crown_height &= (voxels >= config.crown_piece_min_voxels) | (np.arange(voxels.size) == main)
     for body in np.flatnonzero(at_crown_height):
         if body != main and is_wire_piece(
             points_m[grouped[order[starts[body] : ends[body]]]],

@@ -17,6 +17,7 @@ from canopy_core.balls import color_likelihood, color_mask, detect_ball, detect_
 from canopy_core.capture import load_capture
 from canopy_core.config import BallConfig
 from canopy_core.errors import BallNotFound
+from canopy_core.ground import GroundPlane
 from canopy_core.spheres import SphereFit, fit_sphere
 
 REAL_BALL_DATA = Path(__file__).resolve().parents[3] / "shared" / "data" / "real-kinect2-ball"
@@ -544,3 +545,39 @@ def test_a_post_as_thick_as_the_ball_and_of_its_colour_is_not_taken_for_it() -> 
     fit = detect_ball(_render_view([ball, *post], seed=6), "yellow", BallConfig())
 
     assert _error_m(fit, ball) < 0.003
+
+
+def test_a_ball_wholly_in_deep_shade_keeps_its_colour() -> None:
+    """Hard sun, the ball in a cast shadow: every pixel at a sixth of its brightness (value about 35, below
+    the range's floor). Brightness says how it is lit, not what colour it is."""
+    ball = Sphere((0.0, 0.3, 3.2), 0.05, YELLOW)
+    cloud = _render_view([ball], seed=4)
+    on_ball = np.linalg.norm(cloud.points_m - ball.center_m, axis=1) < 0.06
+    colors = cloud.colors_rgb.copy()
+    colors[on_ball] = (colors[on_ball] / 6).astype(np.uint8)
+    shade = ViewCloud(cloud.view, cloud.points_m, colors, cloud.has_color, cloud.pixels)
+
+    found = find_ball_candidates(shade, BallConfig())
+
+    [candidate] = [c for c in found.candidates if _error_m(c.fit, ball) < 0.004]
+    assert candidate.objection("yellow", BallConfig()) is None
+    assert candidate.color_scores["yellow"] > 0.8
+
+
+def test_a_crown_full_of_red_apples_does_not_use_up_the_tries_before_the_red_ball_on_the_ground() -> None:
+    """Thirty red apples hang nearer the camera and 1.2-1.6 m above the ground; their votes outnumber the
+    far ball's. With the view's ground plane, the peaks resting on it are fitted first (on a simulated
+    capture, seed 2028030, the ball was beyond the eight peaks tried, and an apple on the ground that both
+    views saw was taken for it)."""
+    rng = np.random.default_rng(7)
+    ball = Sphere((0.6, 0.45, 3.9), 0.05, RED)  # resting on the ground, the plane y = 0.5 (y down)
+    apples = [
+        Sphere((rng.uniform(-1.0, 1.0), rng.uniform(-1.1, -0.7), rng.uniform(2.6, 3.2)), 0.045, RED)
+        for _ in range(30)
+    ]
+    cloud = _render_view([ball, *apples], seed=8)
+    ground = GroundPlane(point_m=np.array([0.0, 0.5, 3.0]), normal=np.array([0.0, -1.0, 0.0]))
+
+    found = find_ball_candidates(cloud, BallConfig(), ground=ground)
+
+    assert any(_error_m(c.fit, ball) < 0.004 for c in found.candidates)

@@ -265,6 +265,16 @@ def test_a_stray_pair_of_points_far_beside_the_crown_does_not_set_its_width() ->
     assert width == pytest.approx(_metrics(tree, colors).width_m, abs=1e-9)
 
 
+def test_a_speck_above_the_crown_apart_from_it_does_not_raise_the_top() -> None:
+    """A glint of a wire 30 cm above the crown: a few points, two voxels, each with neighbours."""
+    rng = np.random.default_rng(27)
+    tree, colors = _leafy_tree(rng)
+    speck = np.array([[0.3, 0.0, 3.25], [0.31, 0.0, 3.25], [0.33, 0.01, 3.25], [0.35, 0.0, 3.26]])
+    points, point_colors = _with(tree, colors, speck, LEAF)
+    assert canopy_height(points, support_points=2) > _metrics(tree, colors).height_m + 0.2  # what was wrong
+    assert _metrics(points, point_colors).height_m == pytest.approx(_metrics(tree, colors).height_m, abs=1e-9)
+
+
 def test_points_without_any_crown_fail_clearly_instead_of_measuring_nothing() -> None:
     rng = np.random.default_rng(30)
     weeds = rng.uniform([-0.5, -0.5, 0.15], [0.5, 0.5, 0.5], size=(200, 3))
