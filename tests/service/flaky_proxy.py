@@ -55,6 +55,7 @@ class FlakyProxy:
         self._random = random.Random(self.faults.seed)
         self._lock = threading.Lock()
         self._refuse_until = 0.0
+        self._refusals_left = 0
         self._refused_once = False
         self._open: set[socket.socket] = set()
         self._listener = socket.create_server(("127.0.0.1", self.port))
@@ -65,10 +66,11 @@ class FlakyProxy:
         self._stopping = True
         self._listener.close()
 
-    def refuse_for(self, seconds: float) -> None:
-        """Take the link down now for ``seconds``: open connections die, new ones are refused."""
+    def refuse_next(self, connections: int) -> None:
+        """Take the link down until ``connections`` more connections have been refused, however long the
+        client takes to try them (a laptop out of range until it has tried a few times)."""
         with self._lock:
-            self._go_down(seconds)
+            self._refusals_left = connections
 
     def _go_down(self, seconds: float) -> None:
         self._refuse_until = time.monotonic() + seconds
@@ -88,9 +90,12 @@ class FlakyProxy:
                 client, _ = self._listener.accept()
             except OSError:
                 return
-            if time.monotonic() < self._refuse_until:
-                with self._lock:
+            with self._lock:
+                refuse = time.monotonic() < self._refuse_until or self._refusals_left > 0
+                if refuse:
                     self.refused += 1
+                    self._refusals_left = max(self._refusals_left - 1, 0)
+            if refuse:
                 _reset(client)
                 continue
             threading.Thread(target=self._serve, args=(client,), daemon=True).start()

@@ -205,7 +205,7 @@ def test_watch_sends_captures_as_they_appear_and_once_the_network_is_back(
     day = tmp_path / "today"
     day.mkdir()
     proxy = FlakyProxy(_server_port(service))
-    proxy.refuse_for(3.0)  # the laptop starts out of range
+    proxy.refuse_next(3)  # the laptop starts out of range: its first three tries are refused
     watcher = subprocess.Popen(
         [CANOPY, "watch", str(day), "--server", proxy.url, "--key", service.admin_key]
         + ["--interval", "0.2", "--settle", "0.5"],
@@ -224,7 +224,7 @@ def test_watch_sends_captures_as_they_appear_and_once_the_network_is_back(
         watcher.send_signal(signal.SIGINT)
         output, _ = watcher.communicate(timeout=60)
         proxy.close()
-    assert proxy.refused > 0
+    assert proxy.refused == 3
     assert [tree for tree, _ in _jobs(service)] == ["T-a", "T-b"]
     for tree in ("T-a", "T-b"):
         assert _stored(service)[tree] == _local(row, tree)
