@@ -288,7 +288,7 @@ def _search_on_circles(
     config: BallConfig,
 ) -> list[list[BallCandidate]]:
     """Look for a view's missing ball at the distance another view shows between it and a ball this view
-    has: on a circle round that ball, at its height above the ground plane (:func:`_circle`). A sphere
+    has: on a circle round that ball, at its height above the ground plane (:func:`_circles`). A sphere
     found there (:meth:`ViewBallCandidates.sphere_near`, where the circle's points have the most surface
     support, :func:`_likeliest_on_circles`) joins the colour's shortlist.
 

@@ -457,6 +457,7 @@ def _tree_masks(
     candidates = np.concatenate(per_view)
     wires = find_wires(
         per_view,
+        cameras_m=cameras_m,
         roi_radius_m=config.roi.radius_m,
         tolerance_m=config.wires.tolerance_m,
         spread_m=config.wires.spread_m,

@@ -66,6 +66,13 @@ _SEEN_WIRE_MAX_SLOPE_DEG = 10.0
 """A line seen along most of its chord (:data:`_WIRE_SEEN_ALONE`) crosses the cylinder as no leaf or branch
 does, so it is a wire even sloping this much against the fitted ground: the ground plane of a few metres
 of undulating floor tilts by degrees, and a wire sags towards its posts."""
+_SIGHT_STEP_M = 0.02
+_SIGHT_RADIUS_M = 0.02
+"""A line of sight is blocked where a point lies within this distance of it (about a pixel's footprint at
+3 m), sampled every ``_SIGHT_STEP_M``."""
+_SIGHT_CLEARANCE_M = 0.15
+"""What lies this close before a place along the line of sight does not hide it (the wire's own mixed
+pixels, leaves touching it)."""
 _WIRE_BIN_M = 0.1
 """Length of the stretches of a line's chord whose occupation measures how much of it is covered."""
 _FIRST_WIRE_TRIES = 3
@@ -97,6 +104,11 @@ class Wire:
         along = offset @ self.direction_xy
         across = offset @ np.array([-self.direction_xy[1], self.direction_xy[0]])
         return across, points_m[:, 2] - (self.height_m + self.slope * along)
+
+    def at(self, along_m: np.ndarray) -> np.ndarray:
+        """The ``(N, 3)`` points of the wire at signed distances ``along_m`` from its origin."""
+        plan = self.origin_xy_m + np.outer(along_m, self.direction_xy)
+        return np.column_stack([plan, self.height_m + self.slope * along_m])
 
     def distance_m(self, points_m: np.ndarray) -> np.ndarray:
         """Distance of each ``(N, 3)`` point from the wire."""
@@ -162,6 +174,7 @@ def tree_component(
 def find_wires(
     views_m: Sequence[np.ndarray],
     *,
+    cameras_m: Sequence[np.ndarray] | None = None,
     roi_radius_m: float,
     tolerance_m: float,
     spread_m: float,
@@ -177,6 +190,10 @@ def find_wires(
         ``roi_radius_m`` round the z axis, ground removed. Thin lines are sought in each view alone: each
         view sees a wire as one line, but the views' lines stand apart by their mixed pixels (see
         :func:`wire_mask`), and two lines side by side are not thin.
+    cameras_m
+        Each view's camera centre in the world frame. A stretch of a wire's chord counts as covered when
+        something stands between it and every camera (the crown hides it there); without the cameras,
+        when something lies within a neighbourhood's radius of it.
     roi_radius_m
         The cylinder's radius.
     tolerance_m
@@ -199,6 +216,12 @@ def find_wires(
     views = [_cell_centroids(points, tolerance_m) for points in views_m if points.shape[0] >= 2]
     if not views:
         return []
+    seen_by = [i for i, points in enumerate(views_m) if points.shape[0] >= 2]
+    sight = (
+        None
+        if cameras_m is None
+        else _SightLines([cKDTree(views_m[i]) for i in seen_by], [np.asarray(cameras_m[i]) for i in seen_by])
+    )
     cells = np.concatenate(views)
     line_cells = [_line_cells(view, tolerance_m) for view in views]
     sparse_pool = cells[np.concatenate([sparse for sparse, _ in line_cells])]
@@ -234,6 +257,7 @@ def find_wires(
             max_slope=max_slope,
             min_coverage=min_coverage,
             parallel=first is not None,
+            sight=sight,
         ):
             wires.append(wire)
             thin_pool = thin_pool[~wire_mask(thin_pool, [wire], tolerance_m=tolerance_m, spread_m=spread_m)]
@@ -310,6 +334,31 @@ def _off_sight_plane(wire: Wire, points_m: np.ndarray, camera_m: np.ndarray) -> 
     normal /= length
     normal *= np.sign(normal[2]) or 1.0
     return (points_m - origin) @ normal
+
+
+@dataclass(frozen=True, eq=False)
+class _SightLines:
+    """Each view's points (indexed) and camera centre: what stands between a camera and a place."""
+
+    trees: list[cKDTree]
+    cameras_m: list[np.ndarray]
+
+    def hidden(self, places_m: np.ndarray) -> np.ndarray:
+        """Whether each of ``(N, 3)`` places is hidden from every camera: some point of that camera's view
+        lies within ``_SIGHT_RADIUS_M`` of the line of sight, between the camera and ``_SIGHT_CLEARANCE_M``
+        short of the place. A wire is not seen where the crown stands in front of it, from every side."""
+        hidden = np.ones(places_m.shape[0], dtype=bool)
+        for tree, camera in zip(self.trees, self.cameras_m, strict=True):
+            rays = places_m - camera
+            lengths = np.linalg.norm(rays, axis=1)
+            steps = np.arange(_SIGHT_STEP_M, float(lengths.max()), _SIGHT_STEP_M)
+            inside = steps[None, :] < (lengths - _SIGHT_CLEARANCE_M)[:, None]
+            samples = camera + (steps[None, :, None] / lengths[:, None, None]) * rays[:, None, :]
+            near = tree.query_ball_point(samples[inside], r=_SIGHT_RADIUS_M, return_length=True) > 0
+            blocked = np.zeros(inside.shape, dtype=bool)
+            blocked[inside] = near
+            hidden &= blocked.any(axis=1)
+        return hidden
 
 
 def _chord(origin_xy: np.ndarray, direction_xy: np.ndarray, radius_m: float) -> tuple[float, float] | None:
@@ -472,6 +521,7 @@ def _crosses_as_wire(
     max_slope: float,
     min_coverage: float,
     parallel: bool,
+    sight: _SightLines | None = None,
 ) -> bool:
     """Whether ``wire`` is one: seen (``seen_m``, its points in the search pool) over
     :data:`_WIRE_OPEN_SPAN_M`, and either seen in :data:`_WIRE_SEEN_ALONE` of its chord through the
@@ -506,6 +556,9 @@ def _crosses_as_wire(
         cells_m[wire.distance_m(cells_m) < _WIRE_NEIGHBOURHOOD_M, :2] - wire.origin_xy_m
     ) @ wire.direction_xy
     covered = _stretches_holding(along, start, end)
+    if sight is not None:
+        middles = start + (np.arange(seen_stretches.size) + 0.5) * _WIRE_BIN_M
+        covered |= sight.hidden(wire.at(middles))
     held = np.flatnonzero(seen_stretches)
     if held.size:
         covered[held.min() : held.max() + 1] = True

@@ -133,7 +133,10 @@ def test_wires_are_found_at_their_heights_and_nothing_else_is() -> None:
     assert sorted(wire.height_m - wire.slope * (wire.origin_xy_m @ wire.direction_xy) for wire in wires) == (
         pytest.approx([0.6, 1.5, 2.1], abs=0.01)
     )
-    assert find_wires(_two_views(rng, _tree(rng), []), roi_radius_m=ROI_RADIUS_M, **WIRES) == []
+    no_wires = _two_views(rng, _tree(rng), [])
+    assert find_wires(no_wires, roi_radius_m=ROI_RADIUS_M, **WIRES) == []
+    cameras = [np.array([0.0, -3.5, 1.3]), np.array([0.0, 3.5, 1.3])]
+    assert find_wires(no_wires, cameras_m=cameras, roi_radius_m=ROI_RADIUS_M, **WIRES) == []
 
 
 def test_trellis_post_joined_to_the_tree_by_a_wire_is_dropped() -> None:
@@ -203,3 +206,34 @@ def test_a_wire_above_the_camera_has_its_mixed_pixels_removed_along_the_camera_r
     assert seen_from_camera.all()
     assert level.mean() < 0.5  # what was wrong: a level band keeps the mixed pixels far behind the wire
     assert not wire_mask(crown, [wire], tolerance_m=0.03, spread_m=0.3, camera_m=camera).any()
+
+
+def _crown_surfaces(
+    rng: np.random.Generator, centre: list[float], radii: list[float], n: int
+) -> list[np.ndarray]:
+    """The two sides of an ellipsoidal crown that two cameras across the row see (y < 0 and y > 0)."""
+    direction = rng.normal(size=(n, 3))
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    surface = np.asarray(centre) + direction * np.asarray(radii)
+    return [surface[surface[:, 1] < centre[1]], surface[surface[:, 1] >= centre[1]]]
+
+
+def test_a_wire_hidden_by_the_crown_from_both_sides_is_found_by_what_stands_before_it() -> None:
+    """A wide crown reaching the cylinder's far wall hides the wire through it from both cameras, its
+    surfaces half a metre from the wire; the wire shows only beyond the near side of the crown. What
+    covers the chord is judged along the cameras' lines of sight, not by what lies near the line."""
+    rng = np.random.default_rng(15)
+    front, back = _crown_surfaces(rng, [0.45, 0.0, 1.8], [1.05, 0.6, 0.8], 20000)
+    trunk = _trunk(rng)
+    cameras = [np.array([0.0, -3.5, 1.3]), np.array([0.0, 3.5, 1.3])]
+    wire_z = 1.75
+    views = [
+        np.vstack([trunk[::2], front, _wire(rng, z=wire_z, y=0.01, x_range=(-1.49, -0.62))]),
+        np.vstack([trunk[1::2], back, _wire(rng, z=wire_z, y=-0.01, x_range=(-1.49, -0.62))]),
+    ]
+
+    blind = find_wires(views, roi_radius_m=ROI_RADIUS_M, **WIRES)
+    seeing = find_wires(views, cameras_m=cameras, roi_radius_m=ROI_RADIUS_M, **WIRES)
+
+    assert blind == []  # what was wrong: most of the chord looked empty
+    assert len(seeing) == 1 and seeing[0].height_m == pytest.approx(wire_z, abs=0.01)
