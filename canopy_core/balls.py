@@ -851,7 +851,7 @@ def _fit_near(
     )
     tolerance = _range_tolerance(config.inlier_tolerance_m, centre)
     sphere_inliers(points, np.append(centre, config.radius_m), tolerance, minimum=int(min_start_inliers))
-    fit, _ = refine_sphere(
+    return refine_sphere(
         points,
         centre,
         config.radius_m,
@@ -859,7 +859,6 @@ def _fit_near(
         tolerance_m=tolerance,
         scene_m=outline,
     )
-    return fit
 
 
 def _range_tolerance(tolerance_m: float, centre: np.ndarray) -> float:

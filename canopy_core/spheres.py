@@ -47,8 +47,6 @@ class SphereFit:
         Inlier points the sphere was fitted to.
     rms_m
         RMS distance of the inliers to the sphere the centre was fitted with, metres.
-    candidates
-        Points the inliers were chosen from (the ball-coloured points, or all the points given).
     coverage
         Fraction of the points seen through the sphere's outline, and not in front of it, that lie on it:
         near 1 for a solid ball, which hides what is behind it; low for a sphere across unrelated surfaces.
@@ -58,7 +56,6 @@ class SphereFit:
     radius_m: float
     points: int
     rms_m: float
-    candidates: int
     coverage: float
 
     def to_dict(self) -> dict[str, Any]:
@@ -112,7 +109,7 @@ def fit_sphere(
     Returns
     -------
     SphereFit
-        Centre, radius, inlier count, RMS residual and coverage among the points given (``candidates`` N).
+        Centre, radius, inlier count, RMS residual and coverage among the points given.
 
     Raises
     ------
@@ -129,10 +126,9 @@ def fit_sphere(
         raise ValueError(f"iterations must be at least 1, got {iterations}")
     rng = np.random.default_rng(0) if rng is None else rng
     centre = ransac_centre(points, radius_m, inlier_tolerance_m, iterations, rng)
-    fit, _ = refine_sphere(
+    return refine_sphere(
         points, centre, radius_m, nominal_radius_m=radius_m, tolerance_m=inlier_tolerance_m, scene_m=points
     )
-    return fit
 
 
 def _checked_points(points_m: np.ndarray) -> np.ndarray:
@@ -231,7 +227,7 @@ def refine_sphere(
     nominal_radius_m: float,
     tolerance_m: float,
     scene_m: np.ndarray,
-) -> tuple[SphereFit, np.ndarray]:
+) -> SphereFit:
     """Refine a start sphere on ``points`` and describe the result.
 
     Parameters
@@ -249,8 +245,8 @@ def refine_sphere(
 
     Returns
     -------
-    tuple
-        The fit, and the mask of its inliers over ``points``.
+    SphereFit
+        The fit.
 
     Raises
     ------
@@ -272,10 +268,9 @@ def refine_sphere(
         radius_m=float(free[3]),
         points=int(distances.size),
         rms_m=float(np.sqrt(np.mean((distances - sphere[3]) ** 2))),
-        candidates=int(points.shape[0]),
         coverage=_coverage(scene_m, free, tolerance_m),
     )
-    return fit, mask
+    return fit
 
 
 def _converge(

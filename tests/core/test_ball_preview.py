@@ -32,7 +32,6 @@ def _sphere(
         radius_m=radius_m,
         points=points,
         rms_m=0.003,
-        candidates=points,
         coverage=0.9,
     )
     return BallCandidate(

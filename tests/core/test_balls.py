@@ -151,7 +151,6 @@ def test_sphere_fit_to_dict_is_json_ready() -> None:
         radius_m=0.05,
         points=120,
         rms_m=0.002,
-        candidates=150,
         coverage=0.95,
     )
 
