@@ -26,7 +26,6 @@ from canopy_core.ground import GroundPlane
 __all__ = [
     "BallChoice",
     "Rejection",
-    "check_ball_distances",
     "check_ball_spacing",
     "choose_in_view",
     "describe_view",
@@ -98,21 +97,6 @@ def check_ball_spacing(view: str, centres: np.ndarray, colors: Sequence[str], di
             view=view,
             hint="lay the balls in a triangle around the trunk",
         )
-
-
-def check_ball_distances(
-    view: str, centres: np.ndarray, reference: np.ndarray, colors: Sequence[str], *, tolerance_m: float
-) -> None:
-    """Refuse balls whose mutual distances differ from the reference view's by more than ``tolerance_m``.
-
-    Raises
-    ------
-    RegistrationFailed
-        Naming the view and the colour of the ball in most of the disagreeing pairs (a moved ball, or
-        something else of its colour taken for it).
-    """
-    if _disagreement(centres, reference).max() > tolerance_m:
-        raise _distance_error(view, centres, reference, colors, tolerance_m=tolerance_m)
 
 
 def _distance_error(

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from canopy_core.backproject import ViewCloud
-from canopy_core.ball_selection import check_ball_distances, check_ball_spacing, choose_in_view, select_balls
+from canopy_core.ball_selection import check_ball_spacing, choose_in_view, select_balls
 from canopy_core.balls import find_ball_candidates
 from canopy_core.config import BallConfig
 from canopy_core.errors import BallNotFound, RegistrationFailed
@@ -100,11 +100,20 @@ def test_only_a_floating_sphere_of_a_colour_fails_naming_the_view_colour_and_hei
 
 
 def test_a_ball_moved_between_views_fails_registration_naming_it() -> None:
-    reference = np.array([[0.5, 0.1, 3.0], [-0.3, 0.45, 3.2], [-0.25, -0.5, 2.9]])
-    moved = reference.copy()
-    moved[2] += [0.06, 0.0, 0.0]
+    """The blue ball kicked 15 cm along the ground between the two views: no sphere is where the first view
+    places it, and the triangles disagree."""
+    first, _ = _view(1, [], [], seed=7)
+    x, y, z = BALLS_WORLD["blue"]
+    blue_moved = Sphere(_in_view((x + 0.15, y, z), 2), 0.05, BLUE)
+    others = [Sphere(_in_view(BALLS_WORLD[c], 2), 0.05, RGB[c]) for c in ("red", "yellow")]
+    rendered = _render_view([*others, blue_moved], seed=8)
+    second = ViewCloud("views/2", rendered.points_m, rendered.colors_rgb, rendered.has_color, rendered.pixels)
+    config = BallConfig()
+    views = [find_ball_candidates(first, config), find_ball_candidates(second, config)]
+
     with pytest.raises(RegistrationFailed) as caught:
-        check_ball_distances("views/2", moved, reference, COLORS, tolerance_m=0.02)
+        select_balls(views, config, grounds=[_ground(1), _ground(2)])
+
     assert caught.value.view == "views/2" and "blue ball" in caught.value.message
 
 
