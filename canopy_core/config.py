@@ -318,6 +318,13 @@ class MetricsConfig(_Section):
         description="A body apart from the crown's main body counts as crown only with at least this many "
         "occupied 4 cm voxels (a cluster of leaves); fewer is a speck: flying pixels, a glint of wire.",
     )
+    crown_piece_min_bottom_m: float = Field(
+        0.3,
+        ge=0.0,
+        description="A body apart from the crown's main body counts as crown only if its lowest point is at "
+        "least this high above the ground: one reaching lower rises from the ground (a trellis post, a "
+        "stake, a tall weed), where no crown hangs. Tree points start 0.12 m above the local ground.",
+    )
     wire_piece_min_length_m: float = Field(
         0.1,
         gt=0.0,

@@ -199,7 +199,9 @@ def crown_mask(
     the crown apart from the rest (a sparse cluster, the top leaves) are; ground vegetation, suckers, fallen
     fruit and stray points below the crown, which the bare trunk separates from it, are not, even where they
     reach up to its lowest leaves. Nor is a speck of fewer than ``config.crown_piece_min_voxels`` voxels
-    apart from the rest (flying pixels, a glint of wire), nor a body that is a level straight line longer
+    apart from the rest (flying pixels, a glint of wire), nor a body apart from the rest that reaches down
+    below ``config.crown_piece_min_bottom_m`` (it rises from the ground: a trellis post, a stake, a tall
+    weed beside the trunk; no crown hangs there), nor a body that is a level straight line longer
     than a leaf (a piece of trellis wire beside the crown that the wire search missed; see
     :func:`canopy_core.segment.is_wire_piece`). Candidates inside the column (within
     ``config.trunk_column_radius_m`` of the trunk's axis: suckers, leaves next to the trunk, bark coloured
@@ -238,7 +240,10 @@ def crown_mask(
     main = int(np.argmax(voxels))
     at_crown_height = top - np.maximum(bottom, bottom[main]) >= _CROWN_SHARE_ABOVE * (top - bottom)
     ends = np.r_[starts[1:], order.size]
-    at_crown_height &= (voxels >= config.crown_piece_min_voxels) | (np.arange(voxels.size) == main)
+    pieces = np.arange(voxels.size) != main
+    at_crown_height &= ~pieces | (
+        (voxels >= config.crown_piece_min_voxels) & (bottom >= config.crown_piece_min_bottom_m)
+    )
     for body in np.flatnonzero(at_crown_height):
         if body != main and is_wire_piece(
             points_m[grouped[order[starts[body] : ends[body]]]],

@@ -304,21 +304,28 @@ def wire_mask(
     spread_m: float,
     camera_m: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Mask of the ``(N, 3)`` points of any of ``wires``: within ``spread_m`` across it in plan, and within
-    ``tolerance_m`` of the plane through it and the camera at ``camera_m`` (world frame) that saw the
-    points, or of its height when no camera is given.
+    """Mask of the ``(N, 3)`` points of any of ``wires``: within ``tolerance_m`` of the plane through it and
+    the camera at ``camera_m`` (world frame) that saw the points, and within ``spread_m`` across it in plan
+    or anywhere behind it as that camera sees it; without a camera, within ``tolerance_m`` of its height and
+    ``spread_m`` across it.
 
     A wire is thinner than a depth pixel, so every pixel that sees it blends its depth with what lies
     behind: its points stand off the wire along the camera's rays through it, in the plane that holds the
-    wire and the camera's centre, each view's the other way. A camera at the wire's height sees that plane
+    wire and the camera's centre, each view's the other way, as far behind the wire as the background
+    (the far side of the region of interest, or beyond). A camera at the wire's height sees that plane
     level; one 1.2 m high looking at a wire 2.5 m high 3 m away sees it sloping by 23 degrees, and a mixed
     pixel 30 cm behind the wire stands 12 cm below its height.
     """
     on_wire = np.zeros(points_m.shape[0], dtype=bool)
     for wire in wires:
         across, rise = wire.offsets_m(points_m)
-        off_plane = rise if camera_m is None else _off_sight_plane(wire, points_m, camera_m)
-        on_wire |= (np.abs(off_plane) < tolerance_m) & (np.abs(across) < spread_m)
+        if camera_m is None:
+            on_wire |= (np.abs(rise) < tolerance_m) & (np.abs(across) < spread_m)
+            continue
+        camera_across = wire.offsets_m(np.asarray(camera_m, dtype=float)[None, :])[0][0]
+        behind = across * np.sign(camera_across) < 0.0
+        near = np.abs(_off_sight_plane(wire, points_m, camera_m)) < tolerance_m
+        on_wire |= near & ((np.abs(across) < spread_m) | behind)
     return on_wire
 
 
