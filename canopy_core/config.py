@@ -184,17 +184,20 @@ class WireConfig(_Section):
         0.3,
         gt=0.0,
         le=1.0,
-        description="Points at a wire's height (within tolerance_m) up to this far across it are its mixed "
-        "pixels: a wire fills part of a depth pixel, whose reading blends it with what lies behind, so its "
-        "points stand off it along the camera rays, nearly level, each view's to its own side (by up to "
-        "0.25 m in simulated captures).",
+        description="Points in a wire's sight plane (within tolerance_m) up to this far across it, and any "
+        "behind it as their camera sees it, are its mixed pixels: a wire fills part of a depth pixel, whose "
+        "reading blends it with what lies behind, so its points stand off it along the camera rays, each "
+        "view's to its own side. Without the camera (the wire search), points at its height this far across "
+        "it are its own (its mixed pixels reach 0.25 m in most simulated captures).",
     )
     max_slope_deg: float = Field(
         3.0,
         ge=0.0,
         lt=45.0,
-        description="A wire is level within this angle (relative to the ground, which a row on a slope "
-        "follows); its sag bends it by about a centimetre over the region of interest.",
+        description="The first wire found is level within this angle (relative to the ground, which a row "
+        "on a slope follows); its sag bends it by about a centimetre over the region of interest. The "
+        "trellis's other wires hang from the same posts, so they slope within this angle of the first "
+        "(the ground round the tree may tilt by degrees against the row's level).",
     )
     min_coverage: float = Field(
         0.8,

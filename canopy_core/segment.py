@@ -78,6 +78,10 @@ _WIRE_BIN_M = 0.1
 _FIRST_WIRE_TRIES = 3
 """Most lines tried for the first wire: it is the most evident line, or nearly (the first or second tried in
 50 simulated captures with wires); lines after those are leaves lining up by chance."""
+_WIRE_FIT_ROUNDS = 4
+"""Rounds of the wire's fit: the first on the Hough line's points, then on the points near the fit."""
+_WIRE_FIT_REACH = 2.0
+"""Each round of the fit takes in the points within this many tolerances of the last round's line."""
 _WIRE_MAX_LINES = 10
 """Most candidate lines examined: orchards string two to five wires, and each rejected candidate line
 takes its points out of the search."""
@@ -256,7 +260,7 @@ def find_wires(
             roi_radius_m=roi_radius_m,
             max_slope=max_slope,
             min_coverage=min_coverage,
-            parallel=first is not None,
+            first=first,
             sight=sight,
         ):
             wires.append(wire)
@@ -496,27 +500,39 @@ def _fit_wire(
     tolerance_m: float,
     direction_xy: np.ndarray | None,
 ) -> tuple[Wire | None, np.ndarray]:
-    """A wire fitted to the ``members`` of ``pool_m`` (along ``direction_xy`` when given), refitted to
-    the pool's points within ``tolerance_m``; and those points. None when fewer than three points remain or
-    the line misses the cylinder."""
+    """A wire fitted to the ``members`` of ``pool_m`` (along ``direction_xy`` when given), then refitted to
+    the pool's points within :data:`_WIRE_FIT_REACH` tolerances of it, each weighted down by its distance
+    (a Cauchy weight of scale ``tolerance_m``); and the pool's points within ``tolerance_m`` of the result.
+    None when fewer than three points remain or the line misses the cylinder.
+
+    The first fit sees the wire where the Hough line found it, often one side of the crown: its slope,
+    extrapolated across the chord, misses the wire's far side by a few centimetres. Reaching a little
+    farther each round takes in that side, and the weights keep leaves beside the wire from pulling it.
+    """
     wire = None
-    for _ in range(2):
-        points = pool_m[members]
+    weights = members.astype(float)
+    for _ in range(_WIRE_FIT_ROUNDS):
+        used = weights > 0
+        points, weight = pool_m[used], weights[used]
         if points.shape[0] < 3:
             return None, members
-        origin = points[:, :2].mean(axis=0)
+        origin = np.average(points[:, :2], axis=0, weights=weight)
         direction = (
             direction_xy
             if direction_xy is not None
-            else np.linalg.svd(points[:, :2] - origin, full_matrices=False)[2][0]
+            else np.linalg.svd((points[:, :2] - origin) * np.sqrt(weight)[:, None], full_matrices=False)[2][0]
         )
         if _chord(origin, direction, roi_radius_m) is None:
             return None, members
         along = (points[:, :2] - origin) @ direction
-        slope, height = np.polyfit(along, points[:, 2], 1)
+        slope, height = np.polyfit(along, points[:, 2], 1, w=np.sqrt(weight))
         wire = Wire(origin, direction, float(height), float(slope))
-        members = wire.distance_m(pool_m) < tolerance_m
-    return wire, members
+        distance = wire.distance_m(pool_m)
+        weights = np.where(
+            distance < _WIRE_FIT_REACH * tolerance_m, 1.0 / (1.0 + (distance / tolerance_m) ** 2), 0.0
+        )
+    assert wire is not None
+    return wire, wire.distance_m(pool_m) < tolerance_m
 
 
 def _crosses_as_wire(
@@ -527,13 +543,16 @@ def _crosses_as_wire(
     roi_radius_m: float,
     max_slope: float,
     min_coverage: float,
-    parallel: bool,
+    first: Wire | None,
     sight: _SightLines | None = None,
 ) -> bool:
     """Whether ``wire`` is one: seen (``seen_m``, its points in the search pool) over
     :data:`_WIRE_OPEN_SPAN_M`, and either seen in :data:`_WIRE_SEEN_ALONE` of its chord through the
-    cylinder (sloping at most :data:`_SEEN_WIRE_MAX_SLOPE_DEG`), or level within ``max_slope`` and
-    crossing the cylinder.
+    cylinder (sloping at most :data:`_SEEN_WIRE_MAX_SLOPE_DEG`), or crossing the cylinder level within
+    ``max_slope``; a wire sought parallel to the ``first`` one found, within ``max_slope`` of that one's
+    slope: the trellis's wires are strung between the same posts, so they slope alike in the ground frame,
+    which follows the floor around the tree and may tilt by degrees against the row's level (an
+    undulating floor, a wire strung along the row's grade).
 
     It crosses when it covers ``min_coverage`` of its chord: the stretch between the farthest points where
     it is seen (within it, a crown may hide it from every view: an open vase's shell hides its hollow
@@ -541,7 +560,7 @@ def _crosses_as_wire(
     the crown or a neighbour hiding it. What is left may be out of the cameras' view (a wire above a tall
     crown) or lost to dropout. The first wire, sought in any direction, must also be seen where it crosses
     the cylinder's wall, within :data:`_WIRE_WALL_M` of both ends of its chord, or in
-    :data:`_FIRST_WIRE_SEEN` of its chord; wires sought ``parallel`` to it need not.
+    :data:`_FIRST_WIRE_SEEN` of its chord; wires sought parallel to it need not.
     """
     chord = wire.chord(roi_radius_m)
     if chord is None:
@@ -553,11 +572,11 @@ def _crosses_as_wire(
         return False
     if seen_stretches.mean() >= _WIRE_SEEN_ALONE:
         return abs(wire.slope) <= np.tan(np.radians(_SEEN_WIRE_MAX_SLOPE_DEG))
-    if abs(wire.slope) > max_slope:
+    if abs(wire.slope - (0.0 if first is None else first.slope)) > max_slope:
         return False
     at_wall = int(np.ceil(_WIRE_WALL_M / _WIRE_BIN_M))
     seen_at_both_walls = bool(seen_stretches[:at_wall].any() and seen_stretches[-at_wall:].any())
-    if not (parallel or seen_at_both_walls or seen_stretches.mean() >= _FIRST_WIRE_SEEN):
+    if not (first is not None or seen_at_both_walls or seen_stretches.mean() >= _FIRST_WIRE_SEEN):
         return False
     along = (
         cells_m[wire.distance_m(cells_m) < _WIRE_NEIGHBOURHOOD_M, :2] - wire.origin_xy_m

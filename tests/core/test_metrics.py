@@ -287,3 +287,27 @@ def test_points_without_any_crown_fail_clearly_instead_of_measuring_nothing() ->
             crown=np.zeros(200, dtype=bool),
             config=MetricsConfig(),
         )
+
+
+def test_a_trellis_post_beside_the_crown_is_neither_crown_nor_height() -> None:
+    """A 10 cm post 1.2 m from the trunk, standing 3.1 m tall beside a crown topping out at 2.94 m, apart
+    from it once the wires are gone: a body at the crown's height, but one that rises from the ground."""
+    rng = np.random.default_rng(30)
+    tree, colors = _leafy_tree(rng)
+    angle, z = rng.uniform(0, 2 * np.pi, 3000), rng.uniform(0.12, 3.1, 3000)
+    post = np.column_stack([1.2 + 0.05 * np.cos(angle), 0.05 * np.sin(angle), z])
+    points, point_colors = _with(tree, colors, post, (110, 95, 70))
+    alone = _metrics(tree, colors)
+
+    metrics = _metrics(points, point_colors)
+
+    grounded = canopy_metrics(
+        points,
+        trunk_xy_m=np.zeros(2),
+        foliage=foliage_mask(point_colors, min_index=0.15),
+        config=MetricsConfig(crown_piece_min_bottom_m=0.0),
+    )
+    assert grounded.height_m > alone.height_m + 0.1  # what was wrong: the post was a piece of the crown
+    assert metrics.height_m == pytest.approx(alone.height_m, abs=0.005)
+    assert metrics.width_m == pytest.approx(alone.width_m, abs=0.005)
+    assert metrics.crown_base_m == pytest.approx(alone.crown_base_m, abs=0.005)
