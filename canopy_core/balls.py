@@ -206,14 +206,16 @@ class ViewBallCandidates:
         it, deep shade, too few points for its normals to vote together): its points that may have its
         colour are fitted, or, if that fails, all its points whatever their colour (a ball in deep shade
         is nearly black); the sphere must pass the same geometric checks, but with less of it in view
-        (``min_completeness_where_placed``: where a ball is expected, a fragment of a sphere is one). None
-        when no sphere holds there.
+        (``min_completeness_where_placed``: where a ball is expected, a fragment of a sphere is one), whose
+        free radius it may not fix (``radius_error_sds_where_placed``). None when no sphere holds there.
         """
         if self.scene is None:
             return None
         placed = config.model_copy(update={"min_completeness": config.min_completeness_where_placed})
         for index in (config.colors.index(color), None):
-            candidate = _candidate_at(estimate_m, index, self.scene, placed)
+            candidate = _candidate_at(
+                estimate_m, index, self.scene, placed, radius_sds=config.radius_error_sds_where_placed
+            )
             if candidate is not None and candidate.problem is None:
                 return candidate
         return None
@@ -769,6 +771,7 @@ def _candidate_at(
     config: BallConfig,
     *,
     apart_from: SphereFit | None = None,
+    radius_sds: float = 0.0,
 ) -> BallCandidate | None:
     """The sphere near a vote peak of the votes of colour ``color`` (its index), described; None when no
     sphere of the radius holds there.
@@ -779,7 +782,8 @@ def _candidate_at(
     background, do not pull its centre. When that sphere is not a ball's (too few sure points, or a
     sunlit half that misleads the fit), all that may have the colour are fitted, and the better of the
     two is kept. Points the colour camera does not see count as both; with ``color`` None, every point
-    does. Points on or inside the sphere ``apart_from`` (a neighbour already found) are left out.
+    does. Points on or inside the sphere ``apart_from`` (a neighbour already found) are left out. The
+    radius may be off by ``radius_sds`` of its standard errors more than ``config.max_radius_error``.
     """
     radius = config.radius_m
     window = scene.window(peak, radius, radii=_NEAR_RADII + 0.5)
@@ -806,7 +810,7 @@ def _candidate_at(
             fit = _fit_near(fitted, outline, config, min_start_inliers=_START_SHARE * needed)
         except ValueError:
             continue  # no sphere of about the radius through these points
-        candidate = _described(fit, maybe, maybe_indices, scene, config)
+        candidate = _described(fit, maybe, maybe_indices, scene, config, radius_sds=radius_sds)
         if candidate.problem is None:
             return candidate
         if best is None or candidate.fit.points > best.fit.points:
@@ -815,7 +819,13 @@ def _candidate_at(
 
 
 def _described(
-    fit: SphereFit, maybe: np.ndarray, maybe_indices: np.ndarray, scene: _Scene, config: BallConfig
+    fit: SphereFit,
+    maybe: np.ndarray,
+    maybe_indices: np.ndarray,
+    scene: _Scene,
+    config: BallConfig,
+    *,
+    radius_sds: float = 0.0,
 ) -> BallCandidate:
     """A fitted sphere as a candidate: its points counted on every point that may be the ball's
     (``maybe``, whose indices into the view are ``maybe_indices``), its colour scores, its problem."""
@@ -829,7 +839,7 @@ def _described(
     }
     fit = replace(fit, points=max(fit.points, int(on_sphere.size)))
     expected = scene.pixels_of_ball(fit.center_m, radius)
-    problem = _geometry_problem(fit, config, expected_points=expected)
+    problem = _geometry_problem(fit, config, expected_points=expected, radius_sds=radius_sds)
     return BallCandidate(fit=fit, expected_points=expected, color_scores=scores, problem=problem)
 
 
@@ -872,8 +882,11 @@ def _range_tolerances(tolerance_m: float, centres_m: np.ndarray) -> np.ndarray:
     return tolerance_m * np.maximum(1.0, (ranges / _TOLERANCE_REFERENCE_RANGE_M) ** 2)
 
 
-def _geometry_problem(fit: SphereFit, config: BallConfig, *, expected_points: float) -> Objection | None:
-    """Why a sphere is not a calibration ball by its shape, or None when it could be."""
+def _geometry_problem(
+    fit: SphereFit, config: BallConfig, *, expected_points: float, radius_sds: float = 0.0
+) -> Objection | None:
+    """Why a sphere is not a calibration ball by its shape, or None when it could be; its radius may be off
+    by ``config.max_radius_error`` and ``radius_sds`` of its standard errors."""
     needed = max(config.min_points, int(np.ceil(config.min_completeness * expected_points)))
     if fit.points > config.max_completeness * expected_points:
         return Objection(
@@ -890,11 +903,15 @@ def _geometry_problem(fit: SphereFit, config: BallConfig, *, expected_points: fl
             f"{needed} needed)",
             "The ball may be mostly hidden or badly lit, or something smaller of its colour was found",
         )
-    if abs(fit.radius_m - config.radius_m) > config.max_radius_error * config.radius_m:
+    slack_m = radius_sds * fit.radius_sd_m
+    if abs(fit.radius_m - config.radius_m) > config.max_radius_error * config.radius_m + slack_m:
+        allowed = f"{config.max_radius_error:.0%}" + (
+            f" and {radius_sds:g} standard errors of the fit ({slack_m * 1000:.0f} mm)" if slack_m > 0 else ""
+        )
         return Objection(
             "radius",
             f"fitted radius {fit.radius_m * 1000:.0f} mm, expected {config.radius_m * 1000:.0f} mm "
-            f"(more than {config.max_radius_error:.0%} off)",
+            f"(more than {allowed} off)",
             "Something else of that colour may be taken for the ball; check balls.diameter_m",
         )
     if fit.rms_m > config.max_rms_m:

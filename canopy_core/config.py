@@ -86,6 +86,13 @@ class BallConfig(BallSet):
     max_radius_error: float = Field(
         0.25, gt=0.0, lt=1.0, description="Largest relative difference of the fitted and the true radius."
     )
+    radius_error_sds_where_placed: float = Field(
+        2.0,
+        ge=0.0,
+        description="A sphere found where the other views place a ball may have a radius off by "
+        "max_radius_error plus this many of the fit's standard errors: a dozen noisy points on a far ball's "
+        "cap hardly fix its radius, and its place is vouched for by the other balls and views.",
+    )
     max_rms_m: float = Field(
         0.012, gt=0.0, description="Largest RMS distance of inliers to the fitted sphere."
     )

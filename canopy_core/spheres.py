@@ -47,6 +47,10 @@ class SphereFit:
         Inlier points the sphere was fitted to.
     rms_m
         RMS distance of the inliers to the sphere the centre was fitted with, metres.
+    radius_sd_m
+        Standard error of ``radius_m``, metres: how well the inliers fix the free radius. A far ball's cap
+        of a dozen noisy points hardly does (a sphere a centimetre larger, its centre a centimetre farther,
+        fits them as well); infinite when they cannot fix it at all.
     coverage
         Fraction of the points seen through the sphere's outline, and not in front of it, that lie on it:
         near 1 for a solid ball, which hides what is behind it; low for a sphere across unrelated surfaces.
@@ -57,6 +61,7 @@ class SphereFit:
     points: int
     rms_m: float
     coverage: float
+    radius_sd_m: float = 0.0
 
     def to_dict(self) -> dict[str, Any]:
         """The fit as JSON-ready values: ``center_m`` ``[x, y, z]``, ``radius_m``, ``points``, ``rms_m``."""
@@ -269,8 +274,26 @@ def refine_sphere(
         points=int(distances.size),
         rms_m=float(np.sqrt(np.mean((distances - sphere[3]) ** 2))),
         coverage=_coverage(scene_m, free, tolerance_m),
+        radius_sd_m=_radius_sd(inliers, free),
     )
     return fit
+
+
+def _radius_sd(points: np.ndarray, sphere: np.ndarray) -> float:
+    """Standard error of the radius of ``sphere`` ``[x, y, z, r]`` fitted by least squares to ``points``:
+    from the residuals' variance and the Jacobian of the distances to the surface (the linearised
+    covariance of the centre and radius). Infinite when the points cannot fix the four parameters."""
+    if points.shape[0] <= 4:
+        return float("inf")
+    offsets = points - sphere[:3]
+    distance = np.linalg.norm(offsets, axis=1)
+    jacobian = np.column_stack([-offsets / distance[:, None], -np.ones(points.shape[0])])
+    variance = float(np.sum((distance - sphere[3]) ** 2)) / (points.shape[0] - 4)
+    try:
+        covariance = variance * np.linalg.inv(jacobian.T @ jacobian)
+    except np.linalg.LinAlgError:
+        return float("inf")
+    return float(np.sqrt(max(covariance[3, 3], 0.0)))
 
 
 def _converge(

@@ -205,3 +205,38 @@ def test_a_ball_missing_from_a_view_is_not_invented_on_the_circle_where_nothing_
         select_balls(views, config, grounds=[_ground(1), _ground(2)])
 
     assert caught.value.view == "views/1" and caught.value.color == "blue"
+
+
+def _fragment(cloud: ViewCloud, centre: np.ndarray, *, keep: int, noise_m: float, seed: int) -> ViewCloud:
+    """The view with the ball at ``centre`` reduced to ``keep`` of its pixels, each read ``noise_m`` off
+    along its ray (grass before it took the rest, mixing them past use)."""
+    rng = np.random.default_rng(seed)
+    on_ball = np.flatnonzero(np.linalg.norm(cloud.points_m - centre, axis=1) < 0.06)
+    kept = rng.choice(on_ball, size=keep, replace=False)
+    away = np.ones(len(cloud.points_m), dtype=bool)
+    away[np.setdiff1d(on_ball, kept)] = False
+    points = cloud.points_m.copy()
+    points[kept] *= 1.0 + rng.normal(0.0, noise_m, (keep, 1)) / np.linalg.norm(points[kept], axis=1)[:, None]
+    return ViewCloud(
+        cloud.view, points[away], cloud.colors_rgb[away], cloud.has_color[away], cloud.pixels[away]
+    )
+
+
+def test_a_ball_showing_a_dozen_noisy_points_is_found_where_the_other_views_place_it() -> None:
+    """Grass leaves 14 of the blue ball's pixels readable in view 2, each a centimetre off: a sphere
+    through them has no definite radius (it may be 35 or 90 mm), and refusing it for that lost a ball
+    that the other balls and the other view placed. Its radius's standard error says so."""
+    first, _ = _view(1, [], [], seed=7)
+    second, truth_2 = _view(2, [], [], seed=8)
+    views = [
+        find_ball_candidates(first, BallConfig()),
+        find_ball_candidates(_fragment(second, truth_2["blue"], keep=14, noise_m=0.01, seed=3), BallConfig()),
+    ]
+    grounds = [_ground(1), _ground(2)]
+    with pytest.raises((BallNotFound, RegistrationFailed)):  # what was wrong: the free radius was judged
+        select_balls(views, BallConfig(radius_error_sds_where_placed=0.0), grounds=grounds)
+
+    chosen = select_balls(views, BallConfig(), grounds=grounds)
+
+    assert chosen[1].found_by_position == ("blue",)
+    assert np.linalg.norm(chosen[1].chosen["blue"].fit.center_m - truth_2["blue"]) < 0.03
