@@ -21,7 +21,7 @@ import numpy as np
 from canopy_core.balls import BallCandidate, Objection, ViewBallCandidates
 from canopy_core.config import BallConfig
 from canopy_core.errors import BallNotFound, RegistrationFailed
-from canopy_core.ground import GroundPlane
+from canopy_core.ground import CAMERA_UP, GroundPlane
 
 __all__ = [
     "BallChoice",
@@ -197,12 +197,13 @@ def select_balls(
         if len(views) > 1 and len(config.colors) >= 3
         else ()
     )
-    chosen = None if searches or not all(per_view) else _consistent_choice(per_view, config)
+    ups = [CAMERA_UP if ground is None else ground.normal for ground in grounds]
+    chosen = None if searches or not all(per_view) else _consistent_choice(per_view, ups, config)
     for search in searches:
         found = search(views, shortlists, per_view, grounds, config)
         rescued = [before + more for before, more in zip(rescued, found, strict=True)]
         per_view = [_assignments(shortlist, config) for shortlist in shortlists]
-        chosen = _consistent_choice(per_view, config) if all(per_view) else None
+        chosen = _consistent_choice(per_view, ups, config) if all(per_view) else None
         if chosen is not None:
             break
     for view, shortlist, triangles in zip(views, shortlists, per_view, strict=True):
@@ -549,21 +550,26 @@ def _assignments(shortlist: _Shortlist, config: BallConfig) -> list[tuple[float,
 
 
 def _consistent_choice(
-    per_view: list[list[tuple[float, tuple[BallCandidate, ...]]]], config: BallConfig
+    per_view: list[list[tuple[float, tuple[BallCandidate, ...]]]], ups: list[np.ndarray], config: BallConfig
 ) -> list[tuple[BallCandidate, ...]] | None:
-    """The combination per view, one for every view, whose distances agree with the first view's and whose
-    total score is highest; None when there is none."""
+    """The combination per view, one for every view, whose distances agree with the first view's, that
+    turns the same way seen from above (``ups``: each view's up, its ground's normal), and whose total
+    score is highest; None when there is none.
+
+    Distances alone allow a mirror image: a look-alike where the ball would lie mirrored across the line
+    through the other two (the second place where the other balls put it, :func:`_third_ball`) makes a
+    triangle of the same sides, and registering it turns the view upside down."""
     best: tuple[float, list[tuple[BallCandidate, ...]]] | None = None
     for reference_score, reference in per_view[0]:
-        reference_centres = np.array([c.fit.center_m for c in reference])
         total, chosen = reference_score, [reference]
-        for triangles in per_view[1:]:
+        turn = _turn(reference, ups[0])
+        for triangles, up in zip(per_view[1:], ups[1:], strict=True):
             match = next(
                 (
                     (score, triangle)
                     for score, triangle in triangles
-                    if _disagreement(np.array([c.fit.center_m for c in triangle]), reference_centres).max()
-                    <= config.max_distance_mismatch_m
+                    if _mismatch(triangle, reference, config) <= config.max_distance_mismatch_m
+                    and _turn(triangle, up) == turn
                 ),
                 None,
             )
@@ -607,6 +613,35 @@ def _disagreement(centres: np.ndarray, reference: np.ndarray) -> np.ndarray:
     here = np.linalg.norm(centres[:, None] - centres[None, :], axis=2)
     there = np.linalg.norm(reference[:, None] - reference[None, :], axis=2)
     return np.abs(here - there)
+
+
+def _turn(triangle: tuple[BallCandidate, ...], up: np.ndarray) -> bool:
+    """Whether the first three balls of ``triangle`` follow each other anticlockwise seen from ``up``."""
+    a, b, c = (candidate.fit.center_m for candidate in triangle[:3])
+    return bool(np.cross(b - a, c - a) @ up > 0.0)
+
+
+def _mismatch(
+    triangle: tuple[BallCandidate, ...], reference: tuple[BallCandidate, ...], config: BallConfig
+) -> float:
+    """How far the balls' mutual distances in ``triangle`` and ``reference`` disagree beyond what their fits
+    can tell: the largest difference of a distance, less ``config.distance_mismatch_sds`` of its standard
+    errors (each end's centre covariance projected on the line between the two centres, in both views)."""
+    worst = 0.0
+    for i, j in itertools.combinations(range(len(triangle)), 2):
+        variance = 0.0
+        difference = 0.0
+        for sign, (a, b) in (
+            (1.0, (triangle[i].fit, triangle[j].fit)),
+            (-1.0, (reference[i].fit, reference[j].fit)),
+        ):
+            offset = b.center_m - a.center_m
+            distance = float(np.linalg.norm(offset))
+            direction = offset / max(distance, 1e-9)
+            variance += float(direction @ (a.center_covariance_m2 + b.center_covariance_m2) @ direction)
+            difference += sign * distance
+        worst = max(worst, abs(difference) - config.distance_mismatch_sds * float(np.sqrt(variance)))
+    return worst
 
 
 def _in_a_line(centres: np.ndarray, diameter_m: float) -> bool:

@@ -152,6 +152,13 @@ class BallConfig(BallSet):
         description="The balls' mutual distances agree between views within this: detection errs by a few "
         "mm; a moved ball or a look-alike taken for one differs by more.",
     )
+    distance_mismatch_sds: float = Field(
+        2.0,
+        ge=0.0,
+        description="The distances may differ by max_distance_mismatch_m and this many standard errors of "
+        "the difference, from the spheres' fits: a ball seen whole is known to a millimetre, a fragment "
+        "of a dozen noisy points to centimetres.",
+    )
 
     @property
     def radius_m(self) -> float:

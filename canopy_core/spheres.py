@@ -9,7 +9,7 @@ seeds them from its own candidates.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -47,6 +47,10 @@ class SphereFit:
         Inlier points the sphere was fitted to.
     rms_m
         RMS distance of the inliers to the sphere the centre was fitted with, metres.
+    center_covariance_m2
+        Covariance of ``center_m`` for the known radius, square metres (from the residuals and the fit's
+        Jacobian): millimetres for a ball seen whole, centimetres along the line of sight for a dozen noisy
+        points on its cap; infinite when the points cannot fix the centre.
     radius_sd_m
         Standard error of ``radius_m``, metres: how well the inliers fix the free radius. A far ball's cap
         of a dozen noisy points hardly does (a sphere a centimetre larger, its centre a centimetre farther,
@@ -62,6 +66,7 @@ class SphereFit:
     rms_m: float
     coverage: float
     radius_sd_m: float = 0.0
+    center_covariance_m2: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
 
     def to_dict(self) -> dict[str, Any]:
         """The fit as JSON-ready values: ``center_m`` ``[x, y, z]``, ``radius_m``, ``points``, ``rms_m``."""
@@ -275,8 +280,25 @@ def refine_sphere(
         rms_m=float(np.sqrt(np.mean((distances - sphere[3]) ** 2))),
         coverage=_coverage(scene_m, free, tolerance_m),
         radius_sd_m=_radius_sd(inliers, free),
+        center_covariance_m2=_center_covariance(inliers, sphere),
     )
     return fit
+
+
+def _center_covariance(points: np.ndarray, sphere: np.ndarray) -> np.ndarray:
+    """Covariance of the centre of ``sphere`` ``[x, y, z, r]`` fitted to ``points`` with its radius known:
+    the residuals' variance times the inverse normal matrix of the distances' Jacobian. Infinite when the
+    points cannot fix the centre."""
+    if points.shape[0] <= 3:
+        return np.full((3, 3), np.inf)
+    offsets = points - sphere[:3]
+    distance = np.linalg.norm(offsets, axis=1)
+    jacobian = -offsets / distance[:, None]
+    variance = float(np.sum((distance - sphere[3]) ** 2)) / (points.shape[0] - 3)
+    try:
+        return variance * np.linalg.inv(jacobian.T @ jacobian)
+    except np.linalg.LinAlgError:
+        return np.full((3, 3), np.inf)
 
 
 def _radius_sd(points: np.ndarray, sphere: np.ndarray) -> float:

@@ -2,15 +2,18 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
 from canopy_core.backproject import ViewCloud
 from canopy_core.ball_selection import check_ball_spacing, choose_in_view, select_balls
-from canopy_core.balls import find_ball_candidates
+from canopy_core.balls import BallCandidate, ViewBallCandidates, find_ball_candidates
 from canopy_core.config import BallConfig
 from canopy_core.errors import BallNotFound, RegistrationFailed
 from canopy_core.ground import GroundPlane
+from canopy_core.spheres import SphereFit
 from tests.core.test_balls import BLUE, FOLIAGE, RED, YELLOW, Panel, Sphere, _render_view
 
 COLORS = ["red", "yellow", "blue"]
@@ -240,3 +243,73 @@ def test_a_ball_showing_a_dozen_noisy_points_is_found_where_the_other_views_plac
 
     assert chosen[1].found_by_position == ("blue",)
     assert np.linalg.norm(chosen[1].chosen["blue"].fit.center_m - truth_2["blue"]) < 0.03
+
+
+def _candidates(
+    view: str, centres: dict[str, np.ndarray], sd_along_sight_m: dict[str, float]
+) -> ViewBallCandidates:
+    """A view's spheres as the detector describes them: one per colour at ``centres`` (camera frame), each
+    known to ``sd_along_sight_m`` along its line of sight and a millimetre across it."""
+    found = []
+    for color, centre in centres.items():
+        sight = centre / np.linalg.norm(centre)
+        covariance = 0.001**2 * np.eye(3) + (sd_along_sight_m[color] ** 2 - 0.001**2) * np.outer(sight, sight)
+        fit = SphereFit(centre, 0.05, 60, 0.003, 0.95, center_covariance_m2=covariance)
+        scores = {other: float(other == color) for other in COLORS}
+        found.append(BallCandidate(fit=fit, expected_points=70.0, color_scores=scores))
+    return ViewBallCandidates(view, tuple(found), dict.fromkeys(COLORS, 100), {})
+
+
+@pytest.mark.parametrize(("blue_sd_m", "agrees"), [(0.015, True), (0.001, False)], ids=["fragment", "whole"])
+def test_triangles_agree_within_what_the_fits_can_tell(blue_sd_m: float, agrees: bool) -> None:
+    """The blue ball 3 cm farther along view 2's line of sight than the first view puts it: for a fragment
+    of a ball, its centre known to 1.5 cm along the line of sight, the triangles agree (the 2 cm tolerance
+    alone refused it); for a ball seen whole, known to a millimetre, the ball has moved."""
+    first = {c: np.asarray(_in_view(BALLS_WORLD[c], 1)) for c in COLORS}
+    second = {c: np.asarray(_in_view(BALLS_WORLD[c], 2)) for c in COLORS}
+    second["blue"] = second["blue"] * (1.0 + 0.03 / np.linalg.norm(second["blue"]))
+    sharp = dict.fromkeys(COLORS, 0.001)
+    views = [
+        _candidates("views/1", first, sharp),
+        _candidates("views/2", second, {**sharp, "blue": blue_sd_m}),
+    ]
+    config = BallConfig()
+
+    if agrees:
+        chosen = select_balls(views, config, grounds=[None, None])
+        assert np.allclose(chosen[1].chosen["blue"].fit.center_m, second["blue"])
+    else:
+        with pytest.raises(RegistrationFailed, match="blue ball"):
+            select_balls(views, config, grounds=[None, None])
+
+
+def test_a_look_alike_where_the_ball_would_lie_mirrored_is_not_taken_for_it() -> None:
+    """In view 2 a blue look-alike lies where the blue ball would be mirrored across the line through the
+    red and yellow balls, and it is likelier than the blue ball: its triangle has the same sides as the
+    first view's (so distances alone took it, and registering it turned the view upside down), but it turns
+    the other way seen from above."""
+    first = {c: np.asarray(_in_view(BALLS_WORLD[c], 1)) for c in COLORS}
+    second = {c: np.asarray(_in_view(BALLS_WORLD[c], 2)) for c in COLORS}
+    red, yellow = second["red"], second["yellow"]
+    line = (yellow - red) / np.linalg.norm(yellow - red)
+    offset = second["blue"] - red
+    mirrored = red + 2 * (offset @ line) * line - offset  # turned half round the red-yellow line
+    sharp = dict.fromkeys(COLORS, 0.001)
+    look_alike = _candidates("views/2", {"blue": mirrored}, sharp).candidates[0]
+    with_ball = _candidates("views/2", second, sharp)
+    half_hidden = [
+        replace(c, fit=replace(c.fit, points=35)) if c.color_scores["blue"] else c
+        for c in with_ball.candidates
+    ]
+    views = [
+        _candidates("views/1", first, sharp),
+        ViewBallCandidates("views/2", (look_alike, *half_hidden), with_ball.colored_points, {}),
+    ]
+    sides = [np.linalg.norm(mirrored - red), np.linalg.norm(mirrored - yellow)]
+    assert sides == pytest.approx(
+        [np.linalg.norm(second["blue"] - red), np.linalg.norm(second["blue"] - yellow)]
+    )
+
+    chosen = select_balls(views, BallConfig(), grounds=[None, None])
+
+    assert np.allclose(chosen[1].chosen["blue"].fit.center_m, second["blue"])
