@@ -286,36 +286,32 @@ def refine_sphere(
 
 
 def _center_covariance(points: np.ndarray, sphere: np.ndarray) -> np.ndarray:
-    """Covariance of the centre of ``sphere`` ``[x, y, z, r]`` fitted to ``points`` with its radius known:
-    the residuals' variance times the inverse normal matrix of the distances' Jacobian. Infinite when the
-    points cannot fix the centre."""
-    if points.shape[0] <= 3:
-        return np.full((3, 3), np.inf)
-    offsets = points - sphere[:3]
-    distance = np.linalg.norm(offsets, axis=1)
-    jacobian = -offsets / distance[:, None]
-    variance = float(np.sum((distance - sphere[3]) ** 2)) / (points.shape[0] - 3)
-    try:
-        return variance * np.linalg.inv(jacobian.T @ jacobian)
-    except np.linalg.LinAlgError:
-        return np.full((3, 3), np.inf)
+    """Covariance of the centre of ``sphere`` ``[x, y, z, r]`` fitted to ``points`` with its radius known."""
+    return _fit_covariance(points, sphere, free_radius=False)
 
 
 def _radius_sd(points: np.ndarray, sphere: np.ndarray) -> float:
-    """Standard error of the radius of ``sphere`` ``[x, y, z, r]`` fitted by least squares to ``points``:
-    from the residuals' variance and the Jacobian of the distances to the surface (the linearised
-    covariance of the centre and radius). Infinite when the points cannot fix the four parameters."""
-    if points.shape[0] <= 4:
-        return float("inf")
+    """Standard error of the radius of ``sphere`` ``[x, y, z, r]`` fitted freely to ``points``."""
+    return float(np.sqrt(max(_fit_covariance(points, sphere, free_radius=True)[3, 3], 0.0)))
+
+
+def _fit_covariance(points: np.ndarray, sphere: np.ndarray, *, free_radius: bool) -> np.ndarray:
+    """The linearised covariance of a least-squares sphere fit to ``points``: the residuals' variance times
+    the inverse normal matrix of the Jacobian of the distances to the surface, over the centre and, when
+    ``free_radius``, the radius. Infinite when the points cannot fix those parameters."""
+    parameters = 4 if free_radius else 3
+    if points.shape[0] <= parameters:
+        return np.full((parameters, parameters), np.inf)
     offsets = points - sphere[:3]
     distance = np.linalg.norm(offsets, axis=1)
-    jacobian = np.column_stack([-offsets / distance[:, None], -np.ones(points.shape[0])])
-    variance = float(np.sum((distance - sphere[3]) ** 2)) / (points.shape[0] - 4)
+    jacobian = -offsets / distance[:, None]
+    if free_radius:
+        jacobian = np.column_stack([jacobian, -np.ones(points.shape[0])])
+    variance = float(np.sum((distance - sphere[3]) ** 2)) / (points.shape[0] - parameters)
     try:
-        covariance = variance * np.linalg.inv(jacobian.T @ jacobian)
+        return variance * np.linalg.inv(jacobian.T @ jacobian)
     except np.linalg.LinAlgError:
-        return float("inf")
-    return float(np.sqrt(max(covariance[3, 3], 0.0)))
+        return np.full((parameters, parameters), np.inf)
 
 
 def _converge(
