@@ -29,7 +29,7 @@ from canopy_core.backproject import ViewCloud
 from canopy_core.config import BallConfig
 from canopy_core.errors import BallNotFound
 from canopy_core.ground import GroundPlane
-from canopy_core.spheres import SphereFit, ransac_centre, refine_sphere, sphere_inliers
+from canopy_core.spheres import SphereFit, ransac_centre, refine_sphere, sphere_coverage, sphere_inliers
 
 __all__ = [
     "BallCandidate",
@@ -783,7 +783,12 @@ def _candidate_at(
     sunlit half that misleads the fit), all that may have the colour are fitted, and the better of the
     two is kept. Points the colour camera does not see count as both; with ``color`` None, every point
     does. Points on or inside the sphere ``apart_from`` (a neighbour already found) are left out. The
-    radius may be off by ``radius_sds`` of its standard errors more than ``config.max_radius_error``.
+    radius may be off by ``radius_sds`` of its standard errors more than ``config.max_radius_error``; then
+    (where the other views place a ball) the coverage is also judged on the outline of a ball of the known
+    radius at the fitted centre, and the better of the two counts: a dozen points on a far ball's cap leave
+    the free radius anywhere up to twice the known one, and the outline of such a sphere takes in the
+    ground behind the ball (a ball 4.5 m away, two thirds hidden, showed 38 % coverage at its free radius
+    of 100 mm).
     """
     radius = config.radius_m
     window = scene.window(peak, radius, radii=_NEAR_RADII + 0.5)
@@ -810,6 +815,10 @@ def _candidate_at(
             fit = _fit_near(fitted, outline, config, min_start_inliers=_START_SHARE * needed)
         except ValueError:
             continue  # no sphere of about the radius through these points
+        if radius_sds > 0.0:  # a fragment's free radius is loose: judge the known ball's outline too
+            tolerance = _range_tolerance(config.inlier_tolerance_m, fit.center_m)
+            known = sphere_coverage(outline, np.append(fit.center_m, radius), tolerance)
+            fit = replace(fit, coverage=max(fit.coverage, known))
         candidate = _described(fit, maybe, maybe_indices, scene, config, radius_sds=radius_sds)
         if candidate.problem is None:
             return candidate

@@ -288,6 +288,13 @@ class IcpConfig(_Section):
         gt=0.0,
         description="As max_rotation_deg, for such a view: a few centimetres at balls 0.6-1.5 m apart.",
     )
+    max_disagreement_m: float = Field(
+        0.05,
+        gt=0.0,
+        description="When the views' surfaces line up only with some ball centre moved farther than this, "
+        "the registration fails: the balls' fits err by millimetres, a fragment's by a few centimetres; "
+        "beyond, a look-alike (a sphere fitted on the trunk, an apple) was taken for a ball.",
+    )
 
 
 class MetricsConfig(_Section):

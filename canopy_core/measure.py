@@ -36,7 +36,7 @@ from canopy_core.ground import (
     view_ground_plane,
 )
 from canopy_core.metrics import CanopyMetrics, canopy_metrics, crown_candidates, crown_mask
-from canopy_core.refine import IcpRefinement, refine_views
+from canopy_core.refine import IcpRefinement, check_icp_agreement, refine_views
 from canopy_core.register import apply, register_by_balls
 from canopy_core.segment import find_wires, tree_component, wire_mask
 from canopy_core.spheres import SphereFit
@@ -265,6 +265,7 @@ def measure(
             found_by_position=[bool(choice.found_by_position) for choice in choices],
             config=config.icp,
         )
+        check_icp_agreement(reports, config.icp)
         roi_points = [apply(c, p) for c, p in zip(corrections, roi_points, strict=True)]
         world_from_view = [c @ pose for c, pose in zip(corrections, world_from_view, strict=True)]
         by_view = {report.view: report for report in reports}

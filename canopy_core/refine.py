@@ -21,9 +21,17 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from canopy_core.config import IcpConfig
+from canopy_core.errors import RegistrationFailed
 from canopy_core.register import apply, pose_change
 
-__all__ = ["AlignmentQuality", "IcpRefinement", "alignment_quality", "anchored_icp", "refine_views"]
+__all__ = [
+    "AlignmentQuality",
+    "IcpRefinement",
+    "alignment_quality",
+    "anchored_icp",
+    "check_icp_agreement",
+    "refine_views",
+]
 
 _NORMAL_NEIGHBOURS = 20
 _MIN_POINTS = 200
@@ -257,3 +265,32 @@ def refine_views(
             )
         )
     return corrections, reports
+
+
+def check_icp_agreement(reports: list[IcpRefinement], config: IcpConfig) -> None:
+    """Refuse a ball registration that the views' own surfaces contradict.
+
+    The anchored ICP holds the balls to each other with their fits' accuracy (millimetres), so when it
+    still moves a view's balls by more than ``config.max_disagreement_m`` to line up the ground and the
+    trunk's foot, the balls and the surfaces tell different poses. The balls then lie: a look-alike was
+    taken for one of them in some view and happened to make a triangle of the right sides (a sphere fitted
+    on the trunk at another height, an apple where the ball's mirror image would lie), and every number
+    measured from that registration would be wrong without a sign.
+
+    Raises
+    ------
+    RegistrationFailed
+        Naming the first such view and how far its balls would have to move.
+    """
+    for report in reports:
+        if report.ball_shift_m > config.max_disagreement_m:
+            raise RegistrationFailed(
+                f"the views' ground and trunk line up only with this view's balls moved by "
+                f"{report.ball_shift_m * 1000:.0f} mm, more than their fits allow "
+                f"({config.max_disagreement_m * 1000:.0f} mm): something else of a ball's colour was "
+                "probably taken for it in some view",
+                view=report.view,
+                field="icp.max_disagreement_m",
+                hint="check with `canopy balls --preview` which sphere was taken for each ball; clear what "
+                "looks like a ball from around them, or re-lay them in open view, and capture again",
+            )

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["SphereFit", "fit_sphere", "ransac_centre", "refine_sphere", "sphere_inliers"]
+__all__ = ["SphereFit", "fit_sphere", "ransac_centre", "refine_sphere", "sphere_coverage", "sphere_inliers"]
 
 _RANSAC_MAX_POINTS = 1000
 """Hypotheses are scored on a random subset of at most this many points; inliers are then taken from all."""
@@ -278,7 +278,7 @@ def refine_sphere(
         radius_m=float(free[3]),
         points=int(distances.size),
         rms_m=float(np.sqrt(np.mean((distances - sphere[3]) ** 2))),
-        coverage=_coverage(scene_m, free, tolerance_m),
+        coverage=sphere_coverage(scene_m, free, tolerance_m),
         radius_sd_m=_radius_sd(inliers, free),
         center_covariance_m2=_center_covariance(inliers, sphere),
     )
@@ -348,7 +348,7 @@ def _stride(count: int) -> int:
     return int(np.ceil(count / _LEAST_SQUARES_MAX_POINTS))
 
 
-def _coverage(scene_m: np.ndarray, sphere: np.ndarray, tolerance_m: float) -> float:
+def sphere_coverage(scene_m: np.ndarray, sphere: np.ndarray, tolerance_m: float) -> float:
     """Fraction of the points seen through the sphere's outline, and not in front of it, that lie on it.
 
     A solid ball hides whatever is behind it, so nearly every point whose line of sight crosses its outline

@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 import open3d as o3d
+import pytest
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from canopy_core.config import IcpConfig
-from canopy_core.refine import anchored_icp, refine_views
+from canopy_core.errors import RegistrationFailed
+from canopy_core.refine import anchored_icp, check_icp_agreement, refine_views
 from canopy_core.register import apply, invert, pose_change
 
 BALLS = np.array([[0.5, 0.1, 0.05], [-0.3, 0.45, 0.05], [-0.25, -0.5, 0.05]])
@@ -132,3 +134,36 @@ def test_a_view_with_a_ball_found_by_position_may_be_corrected_further() -> None
     assert not strict.accepted and "leaves open" in strict.reason
     assert loose.accepted, loose.reason
     assert pose_change(invert(misregistration), corrections[1])[1] < 0.2
+
+
+def test_surfaces_that_contradict_the_balls_by_more_than_their_fits_allow_fail_the_registration() -> None:
+    """Balls that agree with each other while the ground and trunk say the view is tilted by 7 degrees: the
+    triangle was made of a look-alike. The registration fails naming the view, rather than measure a tree
+    whose views do not meet; the small disagreement of a fragment's fit stays a refinement."""
+    rng = np.random.default_rng(4)
+    first = _ground_and_trunk(rng)
+    tilted = _small_motion(7.0, [0.0, 0.0, 0.0])
+    second = apply(tilted, _ground_and_trunk(rng))
+    _, (report,) = refine_views(
+        ["views/1", "views/2"],
+        [first, second],
+        view_anchors_m=[BALLS, BALLS],
+        found_by_position=[False, True],
+        config=IcpConfig(),
+    )
+    assert report.ball_shift_m > IcpConfig().max_disagreement_m
+
+    with pytest.raises(RegistrationFailed) as failure:
+        check_icp_agreement([report], IcpConfig())
+
+    assert failure.value.view == "views/2"
+    assert f"{report.ball_shift_m * 1000:.0f} mm" in failure.value.message
+    slightly = apply(_small_motion(1.5, [0.01, 0.0, 0.005]), _ground_and_trunk(rng))
+    _, reports = refine_views(
+        ["views/1", "views/2"],
+        [first, slightly],
+        view_anchors_m=[BALLS, BALLS],
+        found_by_position=[False, True],
+        config=IcpConfig(),
+    )
+    check_icp_agreement(reports, IcpConfig())
