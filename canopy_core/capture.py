@@ -2,11 +2,18 @@
 
 A capture is ``capture.json`` (the manifest), and per view ``color.png|jpg``, ``depth.png`` and
 ``camera.json``. Every defect raises :class:`CaptureError` naming the view, the file and the field. The
-``parse_*`` functions take bytes so that the service checks uploads with the same rules.
+``parse_*`` functions take bytes so that the client, the service and ``canopy measure`` check with the
+same rules.
+
+Both JSON files are strict: a key the format does not know is refused, naming the nearest known one, since
+a misspelt key read as absent would silently take a default (``depth_scael`` measured every depth with
+the default scale). What capture software wants to record besides (a serial number, a lens distortion,
+the operator) goes under ``extras``, which is kept and never read.
 """
 
 from __future__ import annotations
 
+import difflib
 import json
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -51,8 +58,6 @@ class _Strict(BaseModel):
 class CaptureManifest(_Strict):
     """The content of ``capture.json``."""
 
-    model_config = ConfigDict(extra="allow", frozen=True)
-
     format: str
     orchard: str = Field(min_length=1, max_length=200)
     row: str = Field(min_length=1, max_length=200)
@@ -62,6 +67,7 @@ class CaptureManifest(_Strict):
     calibration_balls: BallSet = Field(default_factory=BallSet)
     views: list[str] = Field(min_length=1, max_length=64)
     roi: RoiConfig | None = None
+    extras: dict[str, Any] = Field(default_factory=dict)
 
     @field_validator("format")
     @classmethod
@@ -99,13 +105,11 @@ class _IntrinsicsModel(_Strict):
 
 
 class _CameraModel(_Strict):
-    # Capture software may record more (serial number, distortion): kept out of the way, not refused.
-    model_config = ConfigDict(extra="ignore", frozen=True)
-
     depth_intrinsics: _IntrinsicsModel
-    depth_scale: float = Field(1000.0, gt=0.0, allow_inf_nan=False)
+    depth_scale: float = Field(gt=0.0, allow_inf_nan=False)
     color_intrinsics: _IntrinsicsModel | None = None
     depth_to_color: list[list[float]] | None = None
+    extras: dict[str, Any] = Field(default_factory=dict)
 
     @model_validator(mode="after")
     def _extrinsics_complete(self) -> _CameraModel:
@@ -190,13 +194,51 @@ class Capture:
     views: tuple[View, ...]
 
 
-def _raise_validation(exc: ValidationError, *, file: str, view: str | None = None) -> None:
-    first = exc.errors()[0]
-    field = ".".join(str(part) for part in first["loc"]) or None
-    message = first["msg"].removeprefix("Value error, ")
-    extra = f" ({len(exc.errors()) - 1} more problem(s))" if len(exc.errors()) > 1 else ""
-    location = f"{field}: " if field else ""
-    raise CaptureError(f"{location}{message}{extra}", file=file, view=view, field=field) from exc
+def _raise_validation(
+    exc: ValidationError, model: type[BaseModel], *, file: str, view: str | None = None
+) -> None:
+    """Raise one :class:`CaptureError` listing every problem of ``exc`` (unknown keys first: a misspelt
+    key also makes the key it was meant to be missing), naming the first one's field."""
+    errors = sorted(exc.errors(), key=lambda error: error["type"] != "extra_forbidden")
+    problems = []
+    for error in errors:
+        location = ".".join(str(part) for part in error["loc"])
+        message = error["msg"].removeprefix("Value error, ")
+        if error["type"] == "extra_forbidden":
+            message = _unknown_key(model, error["loc"])
+        problems.append(f"{location}: {message}" if location else message)
+    field = ".".join(str(part) for part in errors[0]["loc"]) or None
+    hint = (
+        "keys the format does not know go under 'extras' (docs/capture-format.md)"
+        if errors[0]["type"] == "extra_forbidden"
+        else None
+    )
+    raise CaptureError("; ".join(problems), file=file, view=view, field=field, hint=hint) from exc
+
+
+def _unknown_key(model: type[BaseModel], location: tuple[int | str, ...]) -> str:
+    """The message for the unknown key at ``location``: the nearest key the format knows there, if any."""
+    known = _keys_at(model, location[:-1])
+    close = difflib.get_close_matches(str(location[-1]), known, n=1, cutoff=0.6)
+    suggestion = f"; did you mean {close[0]!r}?" if close else ""
+    return f"unknown field{suggestion}"
+
+
+def _keys_at(model: type[BaseModel], path: tuple[int | str, ...]) -> list[str]:
+    """The keys the model nested at ``path`` in ``model`` knows (none when the path leaves the models)."""
+    for part in path:
+        if isinstance(part, int) or part not in model.model_fields:
+            return []
+        annotation = model.model_fields[part].annotation
+        nested = [arg for arg in (annotation, *getattr(annotation, "__args__", ())) if _is_model(arg)]
+        if not nested:
+            return []
+        model = nested[0]
+    return list(model.model_fields)
+
+
+def _is_model(annotation: object) -> bool:
+    return isinstance(annotation, type) and issubclass(annotation, BaseModel)
 
 
 def _load_json(data: bytes, *, file: str, view: str | None) -> Any:
@@ -216,7 +258,7 @@ def parse_manifest(data: bytes, *, file: str = "capture.json") -> CaptureManifes
     try:
         return CaptureManifest.model_validate(raw)
     except ValidationError as exc:
-        _raise_validation(exc, file=file)
+        _raise_validation(exc, CaptureManifest, file=file)
         raise  # unreachable: _raise_validation always raises
 
 
@@ -228,7 +270,7 @@ def parse_camera(data: bytes, *, file: str, view: str | None = None) -> CameraMo
     try:
         model = _CameraModel.model_validate(raw)
     except ValidationError as exc:
-        _raise_validation(exc, file=file, view=view)
+        _raise_validation(exc, _CameraModel, file=file, view=view)
         raise
     return CameraModel(
         depth=Intrinsics(**model.depth_intrinsics.model_dump()),

@@ -23,6 +23,10 @@ class CaptureOut(BaseModel):
         description="Every file the capture needs; a view's colour may be color.png or color.jpg."
     )
     files_received: list[str]
+    files_sha256: dict[str, str] = Field(
+        description="Each received file's SHA-256 (lowercase hex), by path: a client compares its own file "
+        "with it before skipping one as already sent."
+    )
     files_missing: list[str]
     created_at: datetime
 

@@ -107,12 +107,14 @@ def capture_manifest(capture: Capture) -> CaptureManifest:
     return CaptureManifest.model_validate(capture.manifest)
 
 
-def _received(session: Session, capture_id: int) -> list[str]:
-    return list(
-        session.scalars(
-            select(CaptureFile.path).where(CaptureFile.capture_id == capture_id).order_by(CaptureFile.path)
-        )
+def _received(session: Session, capture_id: int) -> dict[str, str]:
+    """Each received file's SHA-256 (hex), by path, in path order."""
+    rows = session.execute(
+        select(CaptureFile.path, CaptureFile.sha256)
+        .where(CaptureFile.capture_id == capture_id)
+        .order_by(CaptureFile.path)
     )
+    return {path: sha256 for path, sha256 in rows}
 
 
 def missing_files(manifest: CaptureManifest, received: list[str]) -> list[str]:
@@ -141,7 +143,8 @@ def capture_out(session: Session, capture: Capture) -> CaptureOut:
         captured_at=capture.captured_at,
         views=manifest.views,
         files_expected=expected_files(manifest),
-        files_received=received,
-        files_missing=missing_files(manifest, received),
+        files_received=list(received),
+        files_sha256=received,
+        files_missing=missing_files(manifest, list(received)),
         created_at=capture.created_at,
     )

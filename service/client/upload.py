@@ -104,6 +104,27 @@ _DIGEST_RESENDS = 3
 """A file whose bytes arrive damaged (400 digest_mismatch) is sent again this many times at most."""
 
 
+class FileChanged(Exception):
+    """A file of the folder differs from the one the server holds under its path."""
+
+
+def _check_same(file: Path, server_sha256: str, *, capture_id: int) -> None:
+    """Raise :class:`FileChanged` unless ``file`` has the bytes the server holds (their SHA-256).
+
+    A re-shot or edited file sent again must not be reported as already there: the measurement would be of
+    the old one. The server keeps a capture's files unchanged (it refuses other bytes under a path), so the
+    crew must record the new ones as a new capture, or delete the old capture first.
+    """
+    local = hashlib.sha256(file.read_bytes()).hexdigest()
+    if local != server_sha256:
+        raise FileChanged(
+            f"changed since it was sent to capture {capture_id}: the server holds other bytes (sha-256 "
+            f"{server_sha256[:12]}…, this file {local[:12]}…). To measure the new file, give the capture a "
+            f"new captured_at in capture.json (a new capture), or delete capture {capture_id} with an admin "
+            f"key (DELETE /v1/captures/{capture_id}) and upload again"
+        )
+
+
 class Uploader:
     """Uploads capture folders to one server.
 
@@ -149,9 +170,11 @@ class Uploader:
             outcome.capture_id = mine.capture_id = int(created.json()["id"])
             receipt.save(folder)
             status = self.transport.request("GET", f"/v1/captures/{mine.capture_id}").json()
-            held = set(status["files_received"])
+            held: dict[str, str] = status["files_sha256"]
             for path, file in files.items():
                 if path in held:
+                    step = path
+                    _check_same(file, held[path], capture_id=mine.capture_id)
                     outcome.files_already_there += 1
                     continue
                 step = path
@@ -173,6 +196,8 @@ class Uploader:
             receipt.save(folder)
         except CaptureError as exc:
             outcome.error = f"not sent, the capture is invalid: {exc}"
+        except FileChanged as exc:
+            outcome.error = f"{step}: {exc}"
         except RequestRefused as exc:
             outcome.error = f"{step}: refused by the server: {exc}"
         except ServerUnreachable as exc:

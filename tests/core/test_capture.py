@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -198,9 +199,73 @@ def test_hue_beyond_opencv_scale_is_refused(capture_dir: Path) -> None:
     assert "0-180" in error.message and error.field.startswith("calibration_balls.hsv")
 
 
-def test_extra_fields_in_camera_json_are_tolerated(capture_dir: Path) -> None:
-    _edit_json(capture_dir / "views/1/camera.json", lambda d: d.update(serial="003154", distortion=[0, 0]))
-    assert load_capture(capture_dir).views[0].camera.depth.fx == 50.0
+def test_what_capture_software_records_besides_is_kept_under_extras(capture_dir: Path) -> None:
+    _edit_json(
+        capture_dir / "views/1/camera.json",
+        lambda d: d.update(extras={"serial": "003154", "distortion": [0]}),
+    )
+    _edit_json(capture_dir / "capture.json", lambda d: d.update(extras={"operator": "Ana"}))
+    capture = load_capture(capture_dir)
+    assert capture.views[0].camera.depth.fx == 50.0 and capture.manifest.extras == {"operator": "Ana"}
+
+
+@pytest.mark.parametrize(
+    ("file", "edit", "field", "meant"),
+    [
+        (
+            "views/1/camera.json",
+            lambda d: d.update(depth_scael=d.pop("depth_scale")),
+            "depth_scael",
+            "depth_scale",
+        ),
+        (
+            "views/1/camera.json",
+            lambda d: d["depth_intrinsics"].update(fxx=d["depth_intrinsics"].pop("fx")),
+            "depth_intrinsics.fxx",
+            "fx",
+        ),
+        ("capture.json", lambda d: d.update(tre=d.pop("tree")), "tre", "tree"),
+        (
+            "capture.json",
+            lambda d: d.update(calibration_balls={"diamter_m": 0.1}),
+            "calibration_balls.diamter_m",
+            "diameter_m",
+        ),
+    ],
+)
+def test_a_misspelt_key_is_refused_naming_the_key_it_was_meant_to_be(
+    capture_dir: Path, file: str, edit: Callable[[dict], None], field: str, meant: str
+) -> None:
+    """Read as absent, a misspelt depth_scale took the default and gave wrong metres without a word."""
+    _edit_json(capture_dir / file, edit)
+    error = _error(capture_dir)
+    assert error.file == file and error.field == field
+    assert f"{field}: unknown field; did you mean '{meant}'?" in error.message
+    assert "extras" in (error.hint or "")
+
+
+def test_every_problem_of_a_file_is_listed(capture_dir: Path) -> None:
+    def edit(camera: dict) -> None:
+        camera["depth_intrinsics"]["fxx"] = camera["depth_intrinsics"].pop("fx")
+        camera["depth_intrinsics"]["cy"] = "middle"
+        camera["serial"] = "003154"
+
+    _edit_json(capture_dir / "views/1/camera.json", edit)
+    message = _error(capture_dir).message
+    for problem in (
+        "depth_intrinsics.fxx: unknown field",
+        "serial: unknown field",
+        "depth_intrinsics.fx: Field required",
+        "depth_intrinsics.cy: Input should be a valid number",
+    ):
+        assert problem in message, problem
+
+
+def test_a_camera_without_its_depth_scale_is_refused(capture_dir: Path) -> None:
+    """Depth units differ between sensors and drivers (1000 or 4000 a metre, or 1): no default is safe."""
+    _edit_json(capture_dir / "views/1/camera.json", lambda d: d.pop("depth_scale"))
+    error = _error(capture_dir)
+    assert error.field == "depth_scale" and "required" in error.message
 
 
 def test_decompression_bomb_is_refused_before_decoding() -> None:

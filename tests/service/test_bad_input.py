@@ -406,6 +406,25 @@ def test_camera_with_bad_intrinsics_is_refused_naming_the_field(
     )
 
 
+def test_camera_with_a_misspelt_key_is_refused_naming_the_key_meant(
+    client: httpx.Client, capture_id: int
+) -> None:
+    """Taken as absent, a misspelt depth_scale would have measured with a default scale: wrong metres."""
+    camera = copy.deepcopy(CAMERA)
+    camera["depth_scael"] = camera.pop("depth_scale")
+    response = put_file(client, capture_id, "views/1/camera.json", camera_json(camera))
+    body = assert_refused_upload(
+        client,
+        capture_id,
+        response,
+        "views/1/camera.json",
+        file="views/1/camera.json",
+        view=VIEW,
+        field="depth_scael",
+    )
+    assert "did you mean 'depth_scale'?" in body["detail"]
+
+
 def test_non_finite_intrinsics_are_sent_as_literal_json_tokens() -> None:
     # Guards the parametrised test above: the service must see NaN and Infinity, not strings or nulls.
     camera = copy.deepcopy(CAMERA)

@@ -172,6 +172,23 @@ def test_capture_changed_after_its_upload_is_reported_not_skipped(
     assert "T-a" in stderr and "HTTP 409" in stderr and "different capture.json" in stderr
 
 
+def test_a_file_reshot_after_its_upload_is_a_conflict_not_already_there(
+    service: Service, tree_capture: Path, tmp_path: Path
+) -> None:
+    """The receipt and the server both name views/1/depth.png, but the folder's bytes are new: skipping it
+    would report done a capture the server holds other bytes of (and measures the old depth)."""
+    row = _row(tree_capture, tmp_path, TREES[:1])
+    assert _upload(service, service.url, row).wait(timeout=300) == 0
+    depth = row / "T-a" / "views" / "1" / "depth.png"
+    depth.write_bytes(depth.read_bytes() + b"re-shot")  # trailing bytes after IEND: still a valid PNG
+    again = _upload(service, service.url, row)
+    _, stderr = again.communicate(timeout=300)
+    assert again.returncode == 1
+    assert "views/1/depth.png: changed since it was sent to capture 1" in stderr
+    assert "DELETE /v1/captures/1" in stderr
+    assert _stored(service)["T-a"]["views/1/depth.png"] != hashlib.sha256(depth.read_bytes()).hexdigest()
+
+
 def test_server_that_lost_a_capture_gets_it_again(
     service: Service, tree_capture: Path, tmp_path: Path
 ) -> None:
