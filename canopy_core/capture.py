@@ -45,6 +45,7 @@ __all__ = [
     "parse_camera",
     "parse_manifest",
     "read_capture",
+    "stored_manifest",
 ]
 
 CAPTURE_FORMAT = "canopy-capture/1"
@@ -102,6 +103,10 @@ class _IntrinsicsModel(_Strict):
     fy: float = Field(gt=0.0, allow_inf_nan=False)
     cx: float = Field(allow_inf_nan=False)
     cy: float = Field(allow_inf_nan=False)
+
+
+_FORMER_DEPTH_SCALE = 1000.0
+"""The depth units per metre a camera.json without ``depth_scale`` was read with before it was required."""
 
 
 class _CameraModel(_Strict):
@@ -262,11 +267,31 @@ def parse_manifest(data: bytes, *, file: str = "capture.json") -> CaptureManifes
         raise  # unreachable: _raise_validation always raises
 
 
-def parse_camera(data: bytes, *, file: str, view: str | None = None) -> CameraModel:
-    """Parse and validate the bytes of a view's ``camera.json``."""
+def stored_manifest(raw: dict[str, Any]) -> CaptureManifest:
+    """A ``capture.json`` the service stored when the capture was created, parsed again.
+
+    It was validated then, perhaps under the laxer rules of the format before 2026-11-24, which kept
+    unknown top-level keys beside the known ones: those are read into ``extras``, so that a capture
+    acknowledged then is still shown and measured.
+    """
+    known = {key: value for key, value in raw.items() if key in CaptureManifest.model_fields}
+    unknown = {key: value for key, value in raw.items() if key not in CaptureManifest.model_fields}
+    return CaptureManifest.model_validate({**known, "extras": {**unknown, **known.get("extras", {})}})
+
+
+def parse_camera(data: bytes, *, file: str, view: str | None = None, stored: bool = False) -> CameraModel:
+    """Parse and validate the bytes of a view's ``camera.json``.
+
+    ``stored``: the file was accepted earlier (a stored upload), perhaps under the format's rules before
+    2026-11-24, which ignored unknown top-level keys and took a missing ``depth_scale`` as
+    ``_FORMER_DEPTH_SCALE``; it is read as it was accepted, so that nothing acknowledged then is refused now.
+    """
     raw = _load_json(data, file=file, view=view)
     if not isinstance(raw, dict):
         raise CaptureError("must hold a JSON object", file=file, view=view)
+    if stored:
+        raw = {key: value for key, value in raw.items() if key in _CameraModel.model_fields}
+        raw.setdefault("depth_scale", _FORMER_DEPTH_SCALE)
     try:
         model = _CameraModel.model_validate(raw)
     except ValidationError as exc:
@@ -340,10 +365,16 @@ def _required(read: FileReader, relative: str, *, view: str | None) -> bytes:
     return data
 
 
-def load_view(read: FileReader, name: str, *, max_pixels: int = DEFAULT_MAX_PIXELS) -> View:
-    """Load and check one view (``views/<name>``) of a capture through ``read``."""
+def load_view(
+    read: FileReader, name: str, *, max_pixels: int = DEFAULT_MAX_PIXELS, stored: bool = False
+) -> View:
+    """Load and check one view (``views/<name>``) of a capture through ``read`` (``stored``: files
+    accepted earlier, see :func:`parse_camera`)."""
     camera = parse_camera(
-        _required(read, f"{name}/camera.json", view=name), file=f"{name}/camera.json", view=name
+        _required(read, f"{name}/camera.json", view=name),
+        file=f"{name}/camera.json",
+        view=name,
+        stored=stored,
     )
     depth = decode_depth(
         _required(read, f"{name}/depth.png", view=name),
@@ -378,9 +409,11 @@ def read_capture(
     *,
     root: Path | None = None,
     max_pixels: int = DEFAULT_MAX_PIXELS,
+    stored: bool = False,
 ) -> Capture:
-    """Load and validate every view of a capture whose manifest is already parsed."""
-    views = tuple(load_view(read, name, max_pixels=max_pixels) for name in manifest.views)
+    """Load and validate every view of a capture whose manifest is already parsed (``stored``: files the
+    service accepted earlier, see :func:`parse_camera`)."""
+    views = tuple(load_view(read, name, max_pixels=max_pixels, stored=stored) for name in manifest.views)
     return Capture(root=root, manifest=manifest, views=views)
 
 

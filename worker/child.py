@@ -20,7 +20,7 @@ from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
 
-from canopy_core.capture import CaptureManifest, read_capture
+from canopy_core.capture import read_capture, stored_manifest
 from canopy_core.cloud_io import ply_bytes
 from canopy_core.errors import CanopyError
 from canopy_core.measure import measure
@@ -76,9 +76,7 @@ def run_measurement(connection: Connection, lifeline: Connection, spec: Measurem
 
     try:
         progress("load", 0.0)
-        capture = read_capture(
-            CaptureManifest.model_validate(spec.manifest), read, max_pixels=spec.max_pixels
-        )
+        capture = read_capture(stored_manifest(spec.manifest), read, max_pixels=spec.max_pixels, stored=True)
         result = measure(capture, overrides=spec.overrides, progress=progress)
         cloud_sha256 = store.put(ply_bytes(result.cloud_points_m, result.cloud_colors_rgb))
         document = json.loads(result.to_json())

@@ -13,6 +13,7 @@ from canopy_core.capture import (
     color_file_names,
     expected_files,
     parse_manifest,
+    stored_manifest,
 )
 from service.captures.schemas import CaptureOut
 from service.models import Capture, CaptureFile, Job, Orchard, Row, Tree
@@ -104,7 +105,7 @@ def get_capture(session: Session, capture_id: int) -> Capture:
 
 def capture_manifest(capture: Capture) -> CaptureManifest:
     """The stored manifest, parsed (it was validated when the capture was created)."""
-    return CaptureManifest.model_validate(capture.manifest)
+    return stored_manifest(capture.manifest)
 
 
 def _received(session: Session, capture_id: int) -> dict[str, str]:

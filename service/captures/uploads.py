@@ -113,7 +113,7 @@ def _stored_camera(context: Context, files: dict[str, CaptureFile], view: str) -
     record = files.get(f"{view}/camera.json")
     if record is None:
         return None
-    return parse_camera(context.store.read(record.sha256), file=record.path, view=view)
+    return parse_camera(context.store.read(record.sha256), file=record.path, view=view, stored=True)
 
 
 def _check_sizes(

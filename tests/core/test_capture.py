@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from canopy_core.capture import load_capture
+from canopy_core.capture import folder_reader, load_capture, read_capture, stored_manifest
 from canopy_core.errors import CaptureError
 
 from .conftest import CAMERA
@@ -279,3 +279,24 @@ def test_decompression_bomb_is_refused_before_decoding() -> None:
     assert len(buffer.getvalue()) < 500_000
     with pytest.raises(CaptureError, match="7000x7000 pixels exceeds the limit"):
         decode_color(buffer.getvalue(), file="views/1/color.png")
+
+
+def test_a_capture_accepted_before_the_format_became_strict_is_still_read_as_it_was(
+    capture_dir: Path,
+) -> None:
+    """Until 2026-11-24 capture.json kept unknown keys and camera.json ignored them and took a missing
+    depth_scale as 1000: what the service stored then (and queued jobs) is read as it was accepted, while
+    the same files are refused as new uploads."""
+    manifest = json.loads((capture_dir / "capture.json").read_text())
+    _edit_json(
+        capture_dir / "views/1/camera.json", lambda d: (d.pop("depth_scale"), d.update(serial="003154"))
+    )
+
+    capture = read_capture(
+        stored_manifest({**manifest, "operator": "Ana"}), folder_reader(capture_dir), stored=True
+    )
+
+    assert capture.manifest.extras == {"operator": "Ana"}
+    assert capture.views[0].camera.depth_scale == 1000.0
+    with pytest.raises(CaptureError, match="serial: unknown field"):
+        load_capture(capture_dir)
