@@ -37,6 +37,14 @@ _RANSAC_HYPOTHESES = 200
 _TRUNK_SLICE_M = (0.12, 0.35)
 _TRUNK_SEARCH_RADIUS_M = 0.8
 _TRUNK_EXCLUSION_M = 0.12
+_TRUNK_HYPOTHESES = 1000
+"""Circles tried through three points of the trunk's slice."""
+_TRUNK_RADIUS_RANGE_M = (0.02, 0.2)
+"""Trunks of fruit trees, from a whip to an old tree."""
+_TRUNK_TOLERANCE_M = 0.01
+"""Bark lies this close to the trunk's circle seen from above (depth noise, a slight lean over the slice)."""
+_TRUNK_SCORED_POINTS = 4000
+"""Each circle is scored on at most this many points of the slice, drawn at random."""
 _MAX_VIEW_TILT_DEG = 45.0
 """A view's ground is within this of the camera's up: crews hold the camera roughly level."""
 _MIN_VIEW_GROUND_SHARE = 0.05
@@ -233,14 +241,79 @@ def _world_rotation(up: np.ndarray, forward_hint: np.ndarray) -> np.ndarray:
 def _trunk_position(
     points_m: np.ndarray, contact: np.ndarray, rotation: np.ndarray
 ) -> tuple[np.ndarray, int]:
-    """Horizontal position of the trunk: median of the points in a low slice near the balls' centroid."""
+    """Horizontal position of the trunk: the centre of the circle of a trunk's size along which the points of
+    a low slice near the balls' centroid cover the longest arc (seen from above, a trunk's bark is an arc or
+    a ring; grass and weeds are scattered dots). The median of the slice, which grass and weeds pull
+    aside, when no such circle is found."""
     world = (points_m - contact) @ rotation.T
     low, high = _TRUNK_SLICE_M
     in_slice = (world[:, 2] > low) & (world[:, 2] < high)
     in_slice &= np.linalg.norm(world[:, :2], axis=1) < _TRUNK_SEARCH_RADIUS_M
     if np.count_nonzero(in_slice) < 20:
         return np.zeros(2), 0
-    return np.median(world[in_slice, :2], axis=0), int(np.count_nonzero(in_slice))
+    xy = world[in_slice, :2]
+    rng = np.random.default_rng(0)
+    scored = xy[rng.permutation(xy.shape[0])[:_TRUNK_SCORED_POINTS]]
+    centres, radii = _trunk_circles(scored, rng)
+    if centres.shape[0] == 0:
+        return np.median(xy, axis=0), int(xy.shape[0])
+    best = int(
+        np.argmax(
+            [_bark_support(scored, centre, radius) for centre, radius in zip(centres, radii, strict=True)]
+        )
+    )
+    on_arc = xy[np.abs(np.linalg.norm(xy - centres[best], axis=1) - radii[best]) < _TRUNK_TOLERANCE_M]
+    return _fit_circle(on_arc), int(on_arc.shape[0])
+
+
+def _trunk_circles(xy: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Circles of a trunk's size through three nearby points of the slice: the first at random, the other two
+    within a trunk's diameter of it, so that all three lie on the trunk often even amid grass."""
+    reach = 2.0 * _TRUNK_RADIUS_RANGE_M[1]
+    firsts = rng.choice(xy.shape[0], size=min(_TRUNK_HYPOTHESES, xy.shape[0]), replace=False)
+    nearby = cKDTree(xy).query_ball_point(xy[firsts], r=reach)
+    triples = [
+        [first, *rng.choice(near, size=2, replace=False)]
+        for first, near in zip(firsts, nearby, strict=True)
+        if len(near) >= 3
+    ]
+    if not triples:
+        return np.zeros((0, 2)), np.zeros(0)
+    centres, radii = _circumcircles(xy[np.array(triples)])
+    plausible = np.isfinite(radii) & (radii > _TRUNK_RADIUS_RANGE_M[0]) & (radii < _TRUNK_RADIUS_RANGE_M[1])
+    return centres[plausible], radii[plausible]
+
+
+def _bark_support(points_m: np.ndarray, centre: np.ndarray, radius_m: float) -> int:
+    """How many points lie on a circle where nothing lies inside it, in stretches of ``_TRUNK_TOLERANCE_M``
+    along it: a trunk is solid, the views see its surface and nothing within. A circle through a clump of
+    grass, however many points its stems have, has other stems inside."""
+    offset = points_m - centre
+    distance = np.linalg.norm(offset, axis=1)
+    stretch = np.floor(np.arctan2(offset[:, 1], offset[:, 0]) * radius_m / _TRUNK_TOLERANCE_M)
+    on_circle = np.abs(distance - radius_m) < _TRUNK_TOLERANCE_M
+    shadowed = np.isin(stretch[on_circle], stretch[distance < radius_m - _TRUNK_TOLERANCE_M])
+    return int(np.count_nonzero(~shadowed))
+
+
+def _circumcircles(triples: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Centres ``(K, 2)`` and radii ``(K,)`` of the circles through each of ``(K, 3, 2)`` point triples
+    (radius inf or nan for three points in a line)."""
+    a, b, c = triples[:, 0], triples[:, 1], triples[:, 2]
+    d = 2 * (a[:, 0] * (b[:, 1] - c[:, 1]) + b[:, 0] * (c[:, 1] - a[:, 1]) + c[:, 0] * (a[:, 1] - b[:, 1]))
+    na, nb, nc = (a**2).sum(1), (b**2).sum(1), (c**2).sum(1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ux = (na * (b[:, 1] - c[:, 1]) + nb * (c[:, 1] - a[:, 1]) + nc * (a[:, 1] - b[:, 1])) / d
+        uy = (na * (c[:, 0] - b[:, 0]) + nb * (a[:, 0] - c[:, 0]) + nc * (b[:, 0] - a[:, 0])) / d
+    centres = np.column_stack([ux, uy])
+    return centres, np.linalg.norm(a - centres, axis=1)
+
+
+def _fit_circle(xy: np.ndarray) -> np.ndarray:
+    """Centre of the least-squares circle through ``(N, 2)`` points (x² + y² = 2ax + 2by + c, linear)."""
+    design = np.column_stack([xy, np.ones(xy.shape[0])])
+    solution, *_ = np.linalg.lstsq(design, (xy**2).sum(axis=1), rcond=None)
+    return solution[:2] / 2.0
 
 
 def _local_ground_height(ground_world: np.ndarray, trunk_xy: np.ndarray, radius_m: float) -> float:

@@ -16,8 +16,8 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
+from scipy.sparse import coo_matrix, csr_matrix
+from scipy.sparse.csgraph import breadth_first_order, connected_components, maximum_flow
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from canopy_core.config import MetricsConfig
@@ -232,6 +232,15 @@ def crown_mask(
     if grouped.size == 0:
         return candidates.copy()
     labels, voxels = _bodies(points_m[grouped], link_m=link_m)
+    rising = ground_rising(
+        points_m[grouped],
+        labels == np.argmax(voxels),
+        link_m=link_m,
+        min_bottom_m=config.crown_piece_min_bottom_m,
+    )
+    if rising.any():
+        grouped = grouped[~rising]
+        labels, voxels = _bodies(points_m[grouped], link_m=link_m)
     z = points_m[grouped, 2]
     order = np.lexsort((z, labels))
     starts = np.flatnonzero(np.r_[True, np.diff(labels[order]) != 0])
@@ -261,20 +270,73 @@ def crown_mask(
     return crown
 
 
+def ground_rising(
+    points_m: np.ndarray, crown_body: np.ndarray, *, link_m: float, min_bottom_m: float
+) -> np.ndarray:
+    """Mask of the points that rise from the ground into the crown: tall grass, weeds, a post.
+
+    The points are joined as in :func:`crown_mask` (occupied voxels closer than ``link_m``), and
+    ``crown_body`` marks the largest body. What stands on the ground (voxels reaching below
+    ``min_bottom_m``) may be joined to the crown through tall vegetation touching its lowest leaves, or a few
+    mixed pixels between them. It is parted from the crown's core (the body's voxels at and above its most
+    occupied level) along the weakest connection: the fewest links whose removal separates the two (a
+    minimum cut, by maximum flow), and of the cuts that weak the one nearest the core. Everything on the
+    ground's side of it is returned; nothing when nothing on the ground reaches the core.
+    """
+    nothing = np.zeros(points_m.shape[0], dtype=bool)
+    cells, voxel = _voxels(points_m)
+    bottom = np.full(cells.shape[0], np.inf)
+    np.minimum.at(bottom, voxel, points_m[:, 2])
+    on_ground = bottom < min_bottom_m
+    in_crown = np.zeros(cells.shape[0], dtype=bool)
+    in_crown[voxel[crown_body]] = True
+    in_crown &= ~on_ground
+    if not on_ground.any() or not in_crown.any():
+        return nothing
+    levels, counts = np.unique(cells[in_crown, 2], return_counts=True)
+    core = in_crown & (cells[:, 2] >= levels[np.argmax(counts)])
+    pairs = cKDTree(cells * _CROWN_VOXEL_M).query_pairs(r=link_m, output_type="ndarray")
+    n, links = cells.shape[0], pairs.shape[0]
+    source, sink = n, n + 1
+    tails = np.concatenate([pairs[:, 0], pairs[:, 1], np.full(on_ground.sum(), source), np.flatnonzero(core)])
+    heads = np.concatenate([pairs[:, 1], pairs[:, 0], np.flatnonzero(on_ground), np.full(core.sum(), sink)])
+    capacity = np.ones(tails.size, dtype=np.int32)
+    capacity[2 * links :] = 2 * links + 1  # more than every link together: never cut
+    graph = csr_matrix((capacity, (tails, heads)), shape=(n + 2, n + 2))
+    flow = maximum_flow(graph, source, sink, method="dinic")
+    if flow.flow_value == 0:
+        return nothing
+    residual = graph - flow.flow
+    residual.data = (residual.data > 0).astype(np.int8)
+    residual.eliminate_zeros()
+    reaches_core = _reachable(residual.T.tocsr(), sink)
+    return (_reachable(graph, source) & ~reaches_core)[:n][voxel]
+
+
+def _reachable(graph: csr_matrix, start: int) -> np.ndarray:
+    """Mask of the nodes of a directed graph reachable from ``start``."""
+    mask = np.zeros(graph.shape[0], dtype=bool)
+    mask[breadth_first_order(graph, start, directed=True, return_predecessors=False)] = True
+    return mask
+
+
+def _voxels(points_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The occupied voxels' integer coordinates ``(M, 3)`` and each point's voxel."""
+    keys = np.floor(points_m / _CROWN_VOXEL_M).astype(np.int64)
+    cells, voxel = np.unique(keys - keys.min(axis=0), axis=0, return_inverse=True)
+    return cells, voxel.ravel()
+
+
 def _bodies(points_m: np.ndarray, *, link_m: float) -> tuple[np.ndarray, np.ndarray]:
     """Each point's body (points joined through occupied voxels closer than ``link_m``), and each body's
     number of voxels."""
-    keys = np.floor(points_m / _CROWN_VOXEL_M).astype(np.int64)
-    keys -= keys.min(axis=0)
-    span = keys.max(axis=0) + 1
-    cells, voxel = np.unique((keys[:, 0] * span[1] + keys[:, 1]) * span[2] + keys[:, 2], return_inverse=True)
-    centres = np.column_stack(np.unravel_index(cells, tuple(span))) * _CROWN_VOXEL_M
-    pairs = cKDTree(centres).query_pairs(r=link_m, output_type="ndarray")
+    cells, voxel = _voxels(points_m)
+    pairs = cKDTree(cells * _CROWN_VOXEL_M).query_pairs(r=link_m, output_type="ndarray")
     graph = coo_matrix(
-        (np.ones(pairs.shape[0], dtype=np.int8), (pairs[:, 0], pairs[:, 1])), shape=(cells.size, cells.size)
+        (np.ones(pairs.shape[0], dtype=np.int8), (pairs[:, 0], pairs[:, 1])), shape=(len(cells), len(cells))
     )
     count, labels = connected_components(graph, directed=False)
-    return labels[voxel.ravel()], np.bincount(labels, minlength=count)
+    return labels[voxel], np.bincount(labels, minlength=count)
 
 
 def crown_base_geometric(

@@ -65,3 +65,33 @@ def test_world_frame_is_level_with_the_ground_and_zero_at_the_trunk_foot() -> No
     assert abs(trunk_foot[2]) < 0.01
     assert np.linalg.norm(np.array(frame.trunk_xy_m) - trunk_foot[:2]) < 0.03
     assert recovered_from_world[1, 1] > 0.99  # y across the row, away from the camera
+
+
+def test_the_trunk_is_found_on_its_bark_among_tall_grass_and_weeds() -> None:
+    """One view's arc of a 7 cm trunk among clumps of leaning grass stems up to 45 cm tall, most of them on
+    one side: the median of the low slice, which the trunk used to be, lies several centimetres off it."""
+    rng = np.random.default_rng(1)
+    points_world, balls_world, trunk_xy = _scene(rng)
+    front = points_world[:, 1] < trunk_xy[1] + 0.07 * np.sin(np.pi / 8)  # the bark the camera sees
+    on_trunk = np.abs(np.linalg.norm(points_world[:, :2] - trunk_xy, axis=1) - 0.07) < 1e-9
+    stems = []
+    for centre in trunk_xy + rng.uniform([-0.1, 0.15], [0.5, 0.6], size=(14, 2)):
+        for foot in centre + rng.normal(0.0, 0.04, size=(20, 2)):
+            z = np.arange(0.0, rng.uniform(0.25, 0.45), 0.007)
+            lean = rng.normal(0.0, 0.2, size=2)  # metres aside per metre up
+            stems.append(np.column_stack([foot + z[:, None] * lean, z]))
+    grass = np.vstack(stems) + rng.normal(0.0, 0.003, size=(sum(map(len, stems)), 3))
+    scene = np.vstack([points_world[~on_trunk | front], grass])
+    camera_from_world = _camera_from_world()
+    frame = fit_ground_frame(
+        apply(camera_from_world, scene),
+        apply(camera_from_world, balls_world),
+        ball_radius_m=0.05,
+        up_hint=np.array([0.0, -1.0, 0.0]),
+        forward_hint=np.array([0.0, 0.0, 1.0]),
+        search_radius_m=1.5,
+        config=GroundConfig(),
+    )
+    recovered_from_world = frame.world_from_reference @ camera_from_world
+    trunk_foot = apply(recovered_from_world, np.array([[trunk_xy[0], trunk_xy[1], 0.0]]))[0]
+    assert np.linalg.norm(np.array(frame.trunk_xy_m) - trunk_foot[:2]) < 0.01

@@ -189,6 +189,27 @@ def test_weeds_and_a_sucker_at_the_trunk_foot_leave_the_crown_base_and_width_alo
     assert metrics.thickness_m == pytest.approx(clean.thickness_m, abs=0.02)
 
 
+def test_tall_grass_joined_to_the_lowest_leaves_by_a_few_mixed_pixels_is_not_the_crown() -> None:
+    """Clumps of grass reaching 0.97 m, 15 cm below the leaves above them, and a thread of mixed pixels
+    (leaf-coloured, between the grass tips and the leaves) that joins them into one body with the crown."""
+    rng = np.random.default_rng(25)
+    tree, colors = _leafy_tree(rng)
+    grass = np.vstack(
+        [
+            _blob(rng, [0.35 * np.cos(a), 0.35 * np.sin(a), 0.545], [0.1, 0.1, 0.425], 600)
+            for a in (0.0, 2.1, 4.2)
+        ]
+    )
+    thread = np.column_stack([np.full(6, 0.35), np.zeros(6), np.linspace(0.99, 1.12, 6)])
+    points, point_colors = _with(*_with(tree, colors, grass, WEED), thread, LEAF)
+    assert _old_crown_base(points, point_colors) < 0.3  # what was wrong
+    crown = _crown(points, foliage_mask(point_colors, min_index=0.15))
+    assert not crown[len(tree) : len(tree) + len(grass)].any()
+    metrics, clean = _metrics(points, point_colors), _metrics(tree, colors)
+    assert metrics.crown_base_m == pytest.approx(clean.crown_base_m)
+    assert metrics.width_m == pytest.approx(clean.width_m)
+
+
 def test_fallen_apples_do_not_move_the_crown_base() -> None:
     rng = np.random.default_rng(21)
     tree, colors = _leafy_tree(rng)
