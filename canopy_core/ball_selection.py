@@ -27,6 +27,7 @@ __all__ = [
     "BallChoice",
     "Rejection",
     "check_ball_spacing",
+    "check_balls_around_trunk",
     "choose_in_view",
     "describe_view",
     "select_balls",
@@ -96,6 +97,34 @@ def check_ball_spacing(view: str, centres: np.ndarray, colors: Sequence[str], di
             "the balls stand in a line, so they do not fix the view's orientation",
             view=view,
             hint="lay the balls in a triangle around the trunk",
+        )
+
+
+def check_balls_around_trunk(
+    centres_m: np.ndarray, trunk_xy_m: np.ndarray, colors: Sequence[str], max_distance_m: float
+) -> None:
+    """Refuse balls that do not lie around the trunk (``centres_m`` and ``trunk_xy_m`` in the world frame).
+
+    A look-alike that every view sees (an apple lying on the ground two metres away) agrees with itself
+    across views, so the triangle check passes it; registration would still be sound, but the region of
+    interest and the ground frame are centred on the balls, and the tree would be measured cut off.
+
+    Raises
+    ------
+    RegistrationFailed
+        Naming the farthest ball and its distance from the trunk.
+    """
+    distance = np.linalg.norm(centres_m[:, :2] - trunk_xy_m, axis=1)
+    far = int(np.argmax(distance))
+    if distance[far] > max_distance_m:
+        others = ", ".join(f"{colors[i]} {distance[i]:.2f} m" for i in range(len(colors)) if i != far)
+        raise RegistrationFailed(
+            f"the {colors[far]} ball was found {distance[far]:.2f} m from the trunk ({others}), where the "
+            "balls lie 0.3-0.8 m from it: something else of its colour was probably taken for it in every "
+            "view",
+            field="balls.max_trunk_distance_m",
+            hint=f"check with `canopy balls --preview` what was taken for the {colors[far]} ball; lay the "
+            "balls 0.3-0.8 m from the trunk, in open view, and capture again",
         )
 
 

@@ -146,6 +146,12 @@ class BallConfig(BallSet):
         "stands more than this higher above the view's ground plane (undulations, grass, the plane's error) "
         "is not a calibration ball (an apple in the crown).",
     )
+    max_trunk_distance_m: float = Field(
+        1.2,
+        gt=0.0,
+        description="The crew lays the balls 0.3-0.8 m from the trunk; a ball found farther than this from "
+        "the trunk is a look-alike (an apple lying on the ground) that every view saw and took for it.",
+    )
     max_distance_mismatch_m: float = Field(
         0.02,
         gt=0.0,

@@ -19,7 +19,7 @@ import numpy as np
 from pydantic import ValidationError
 
 from canopy_core.backproject import ViewCloud, backproject
-from canopy_core.ball_selection import select_balls
+from canopy_core.ball_selection import check_balls_around_trunk, select_balls
 from canopy_core.balls import ViewBallCandidates, find_ball_candidates
 from canopy_core.capture import Capture, CaptureManifest, View, load_capture
 from canopy_core.config import FilterConfig, MeasureConfig
@@ -248,6 +248,12 @@ def measure(
     stages.start("ground")
     ground = _ground_frame(clouds, view_to_reference, centres[0], config)
     world_from_view = [ground.world_from_reference @ pose for pose in view_to_reference]
+    check_balls_around_trunk(
+        apply(ground.world_from_reference, centres[0]),
+        np.array(ground.trunk_xy_m),
+        colors,
+        config.balls.max_trunk_distance_m,
+    )
     roi_points, roi_colors, outliers = [], [], []
     for view, cloud, pose in zip(capture.views, clouds, world_from_view, strict=True):
         points, colors_rgb, dropped = _roi_cloud(cloud, pose, view.camera.depth.fx, config)
