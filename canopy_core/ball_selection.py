@@ -26,10 +26,11 @@ from canopy_core.ground import CAMERA_UP, GroundPlane
 __all__ = [
     "BallChoice",
     "Rejection",
+    "balls_off_trunk",
     "check_ball_spacing",
-    "check_balls_around_trunk",
     "choose_in_view",
     "describe_view",
+    "far_ball",
     "select_balls",
 ]
 
@@ -100,32 +101,35 @@ def check_ball_spacing(view: str, centres: np.ndarray, colors: Sequence[str], di
         )
 
 
-def check_balls_around_trunk(
+def far_ball(
     centres_m: np.ndarray, trunk_xy_m: np.ndarray, colors: Sequence[str], max_distance_m: float
-) -> None:
-    """Refuse balls that do not lie around the trunk (``centres_m`` and ``trunk_xy_m`` in the world frame).
+) -> str | None:
+    """The colour of the ball farthest from the trunk when it lies farther than ``max_distance_m`` from it
+    (``centres_m`` and ``trunk_xy_m`` in the world frame), else None."""
+    distance = np.linalg.norm(centres_m[:, :2] - trunk_xy_m, axis=1)
+    far = int(np.argmax(distance))
+    return colors[far] if distance[far] > max_distance_m else None
+
+
+def balls_off_trunk(
+    centres_m: np.ndarray, trunk_xy_m: np.ndarray, colors: Sequence[str], far: str
+) -> RegistrationFailed:
+    """The failure of balls that do not lie round the trunk, ``far`` (see :func:`far_ball`) the farthest.
 
     A look-alike that every view sees (an apple lying on the ground two metres away) agrees with itself
     across views, so the triangle check passes it; registration would still be sound, but the region of
     interest and the ground frame are centred on the balls, and the tree would be measured cut off.
-
-    Raises
-    ------
-    RegistrationFailed
-        Naming the farthest ball and its distance from the trunk.
     """
     distance = np.linalg.norm(centres_m[:, :2] - trunk_xy_m, axis=1)
-    far = int(np.argmax(distance))
-    if distance[far] > max_distance_m:
-        others = ", ".join(f"{colors[i]} {distance[i]:.2f} m" for i in range(len(colors)) if i != far)
-        raise RegistrationFailed(
-            f"the {colors[far]} ball was found {distance[far]:.2f} m from the trunk ({others}), where the "
-            "balls lie 0.3-0.8 m from it: something else of its colour was probably taken for it in every "
-            "view",
-            field="balls.max_trunk_distance_m",
-            hint=f"check with `canopy balls --preview` what was taken for the {colors[far]} ball; lay the "
-            "balls 0.3-0.8 m from the trunk, in open view, and capture again",
-        )
+    others = ", ".join(f"{color} {distance[i]:.2f} m" for i, color in enumerate(colors) if color != far)
+    return RegistrationFailed(
+        f"the {far} ball was found {distance[list(colors).index(far)]:.2f} m from the trunk ({others}), "
+        "where the balls lie 0.3-0.8 m from it: something else of its colour was probably taken for it in "
+        "every view, and no other sphere of its colour lies round the trunk",
+        field="balls.max_trunk_distance_m",
+        hint=f"check with `canopy balls --preview` what was taken for the {far} ball; lay the balls "
+        "0.3-0.8 m from the trunk, in open view, and capture again",
+    )
 
 
 def _distance_error(

@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -19,7 +19,7 @@ import numpy as np
 from pydantic import ValidationError
 
 from canopy_core.backproject import ViewCloud, backproject
-from canopy_core.ball_selection import check_balls_around_trunk, select_balls
+from canopy_core.ball_selection import BallChoice, balls_off_trunk, far_ball, select_balls
 from canopy_core.balls import ViewBallCandidates, find_ball_candidates
 from canopy_core.capture import Capture, CaptureManifest, View, load_capture
 from canopy_core.config import FilterConfig, MeasureConfig
@@ -55,7 +55,7 @@ __all__ = [
 Progress = Callable[[str, float], None]
 """Called with a stage name and the overall progress in [0, 1] as each stage starts."""
 
-STAGES = ("load", "filter", "balls", "register", "ground", "refine", "metrics", "done")
+STAGES = ("load", "filter", "balls", "register", "refine", "metrics", "done")
 
 MERGED = "merged"
 _GROUND_SAMPLE = 60_000
@@ -238,22 +238,12 @@ def measure(
 
     stages.start("balls")
     candidates, grounds = ball_evidence(clouds, config)
-    choices = select_balls(candidates, config.balls, grounds=grounds)
-    balls = [{color: candidate.fit for color, candidate in choice.chosen.items()} for choice in choices]
 
     stages.start("register")
+    choices, view_to_reference, ground = balls_and_frame(clouds, candidates, grounds, config)
+    balls = [{color: candidate.fit for color, candidate in choice.chosen.items()} for choice in choices]
     centres = [np.array([found[color].center_m for color in colors]) for found in balls]
-    view_to_reference = [register_by_balls(view_centres, centres[0]) for view_centres in centres]
-
-    stages.start("ground")
-    ground = _ground_frame(clouds, view_to_reference, centres[0], config)
     world_from_view = [ground.world_from_reference @ pose for pose in view_to_reference]
-    check_balls_around_trunk(
-        apply(ground.world_from_reference, centres[0]),
-        np.array(ground.trunk_xy_m),
-        colors,
-        config.balls.max_trunk_distance_m,
-    )
     roi_points, roi_colors, outliers = [], [], []
     for view, cloud, pose in zip(capture.views, clouds, world_from_view, strict=True):
         points, colors_rgb, dropped = _roi_cloud(cloud, pose, view.camera.depth.fx, config)
@@ -390,6 +380,61 @@ def _modes(
 
 def _ball_residual(pose: np.ndarray, centres: np.ndarray, reference: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.sum((apply(pose, centres) - reference) ** 2, axis=1))))
+
+
+def balls_and_frame(
+    clouds: list[ViewCloud],
+    candidates: list[ViewBallCandidates],
+    grounds: list[GroundPlane | None],
+    config: MeasureConfig,
+) -> tuple[list[BallChoice], list[np.ndarray], GroundFrame]:
+    """The balls chosen in each view, each view's pose in the reference view's frame, and the world frame.
+
+    The crew lays the balls 0.3-0.8 m from the trunk. When a ball comes out farther from it than
+    ``balls.max_trunk_distance_m``, the sphere taken for it is a look-alike every view saw (an apple lying
+    on the ground agrees with itself across views): the balls are chosen again without it, so the ball is
+    sought where the others place it.
+
+    Raises
+    ------
+    BallNotFound, RegistrationFailed
+        As :func:`select_balls`; RegistrationFailed naming the ball when no other choice lies round the
+        trunk.
+    """
+    choices = select_balls(candidates, config.balls, grounds=grounds)
+    view_to_reference, ground, balls_world = _registered(choices, clouds, config)
+    far = far_ball(
+        balls_world, np.array(ground.trunk_xy_m), config.balls.colors, config.balls.max_trunk_distance_m
+    )
+    if far is None:
+        return choices, view_to_reference, ground
+    without = [
+        replace(view, candidates=tuple(c for c in view.candidates if c is not choice.chosen[far]))
+        for view, choice in zip(candidates, choices, strict=True)
+    ]
+    try:
+        again = select_balls(without, config.balls, grounds=grounds)
+    except MeasurementError:
+        again = None
+    if again is not None:
+        registered = _registered(again, clouds, config)
+        trunk_xy = np.array(registered[1].trunk_xy_m)
+        if far_ball(registered[2], trunk_xy, config.balls.colors, config.balls.max_trunk_distance_m) is None:
+            return again, registered[0], registered[1]
+    raise balls_off_trunk(balls_world, np.array(ground.trunk_xy_m), config.balls.colors, far)
+
+
+def _registered(
+    choices: list[BallChoice], clouds: list[ViewCloud], config: MeasureConfig
+) -> tuple[list[np.ndarray], GroundFrame, np.ndarray]:
+    """Each view's pose in the reference frame from the balls chosen, the world frame, and the reference
+    view's balls in the world frame."""
+    centres = [
+        np.array([choice.chosen[color].fit.center_m for color in config.balls.colors]) for choice in choices
+    ]
+    view_to_reference = [register_by_balls(view_centres, centres[0]) for view_centres in centres]
+    ground = _ground_frame(clouds, view_to_reference, centres[0], config)
+    return view_to_reference, ground, apply(ground.world_from_reference, centres[0])
 
 
 def _ground_frame(

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from canopy_core.ball_selection import balls_off_trunk, far_ball
 from canopy_core.errors import BallNotFound, RegistrationFailed
 from canopy_core.measure import STAGES, Measurement, measure
 from canopy_core.simulate import simulate_capture
@@ -177,21 +178,30 @@ def test_a_triangle_closed_on_the_trunk_fails_instead_of_measuring_a_wrong_tree(
         assert getattr(merged, key) == pytest.approx(truth[key], rel=0.05), key
 
 
-def test_an_apple_both_views_take_for_a_ball_fails_instead_of_measuring_a_cut_tree(tmp_path: Path) -> None:
+def test_an_apple_both_views_take_for_a_ball_is_dropped_and_the_ball_sought_where_placed(
+    tmp_path: Path,
+) -> None:
     """Mixed seed 2032000, found by the accuracy benchmark: the red ball is hidden in tall grass in the
     first view, and a red apple lying on the ground 1.95 m from the trunk, which both views see, agrees with
     itself across views. Centred on that triangle, the region of interest cut the crown: W came out 10 %
-    short with no error. The crew lays the balls 0.3-0.8 m from the trunk, so the measurement fails naming
-    the red ball, or (should the ball be found) the tree is measured right."""
+    short with no error. The crew lays the balls 0.3-0.8 m from the trunk, so the apple is dropped and the
+    red ball sought where the other balls place it: the tree is measured right."""
     capture = simulate_capture(tmp_path / "tree", seed=2032000, n_views=2, scenario="mixed")
     truth = _truth(capture)
-    try:
-        merged = measure(capture).merged
-    except RegistrationFailed as failure:
-        assert failure.field == "balls.max_trunk_distance_m" and "red ball" in failure.message
-        return
+    result = measure(capture)
+    assert "red" in result.views[0].balls_found_by_position
     for key in ("height_m", "width_m", "thickness_m"):
-        assert getattr(merged, key) == pytest.approx(truth[key], rel=0.05), key
+        assert getattr(result.merged, key) == pytest.approx(truth[key], rel=0.05), key
+
+
+def test_a_ball_far_from_the_trunk_is_named_with_every_ball_s_distance() -> None:
+    centres = np.array([[2.0, 0.1, 0.05], [0.5, 0.2, 0.05], [-0.3, -0.4, 0.05]])
+    colors = ["red", "yellow", "blue"]
+    assert far_ball(centres[1:], np.zeros(2), colors[1:], 1.2) is None
+    assert far_ball(centres, np.zeros(2), colors, 1.2) == "red"
+    failure = balls_off_trunk(centres, np.zeros(2), colors, "red")
+    assert failure.field == "balls.max_trunk_distance_m"
+    assert "red ball was found 2.00 m from the trunk (yellow 0.54 m, blue 0.50 m)" in failure.message
 
 
 def test_a_far_ball_mostly_hidden_is_found_where_the_other_view_places_it(tmp_path: Path) -> None:
