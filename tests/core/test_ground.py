@@ -6,7 +6,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from canopy_core.config import GroundConfig
-from canopy_core.ground import fit_ground_frame
+from canopy_core.ground import GroundFrame, fit_ground_frame
 from canopy_core.register import apply, invert
 
 
@@ -45,8 +45,9 @@ def _camera_from_world() -> np.ndarray:
     return invert(world_from_camera)
 
 
-def test_world_frame_is_level_with_the_ground_and_zero_at_the_trunk_foot() -> None:
-    points_world, balls_world, trunk_xy = _scene(np.random.default_rng(0))
+def _fitted_frame(points_world: np.ndarray, balls_world: np.ndarray) -> tuple[GroundFrame, np.ndarray]:
+    """The world frame fitted to the scene as the camera of :func:`_camera_from_world` sees it, and the
+    transform from the scene's world to the one recovered."""
     camera_from_world = _camera_from_world()
     frame = fit_ground_frame(
         apply(camera_from_world, points_world),
@@ -57,7 +58,12 @@ def test_world_frame_is_level_with_the_ground_and_zero_at_the_trunk_foot() -> No
         search_radius_m=1.5,
         config=GroundConfig(),
     )
-    recovered_from_world = frame.world_from_reference @ camera_from_world
+    return frame, frame.world_from_reference @ camera_from_world
+
+
+def test_world_frame_is_level_with_the_ground_and_zero_at_the_trunk_foot() -> None:
+    points_world, balls_world, trunk_xy = _scene(np.random.default_rng(0))
+    frame, recovered_from_world = _fitted_frame(points_world, balls_world)
     up_error_deg = np.degrees(np.arccos(recovered_from_world[2, 2]))
     assert up_error_deg < 0.3  # the ground's slope is 0.3°: the balls' plane alone is ~3° off
     assert frame.tilt_from_ball_plane_deg > 1.0
@@ -82,16 +88,6 @@ def test_the_trunk_is_found_on_its_bark_among_tall_grass_and_weeds() -> None:
             stems.append(np.column_stack([foot + z[:, None] * lean, z]))
     grass = np.vstack(stems) + rng.normal(0.0, 0.003, size=(sum(map(len, stems)), 3))
     scene = np.vstack([points_world[~on_trunk | front], grass])
-    camera_from_world = _camera_from_world()
-    frame = fit_ground_frame(
-        apply(camera_from_world, scene),
-        apply(camera_from_world, balls_world),
-        ball_radius_m=0.05,
-        up_hint=np.array([0.0, -1.0, 0.0]),
-        forward_hint=np.array([0.0, 0.0, 1.0]),
-        search_radius_m=1.5,
-        config=GroundConfig(),
-    )
-    recovered_from_world = frame.world_from_reference @ camera_from_world
+    frame, recovered_from_world = _fitted_frame(scene, balls_world)
     trunk_foot = apply(recovered_from_world, np.array([[trunk_xy[0], trunk_xy[1], 0.0]]))[0]
     assert np.linalg.norm(np.array(frame.trunk_xy_m) - trunk_foot[:2]) < 0.01
