@@ -47,6 +47,7 @@ __all__ = [
     "Progress",
     "ViewDiagnostics",
     "ball_evidence",
+    "balls_and_frame",
     "config_for",
     "filtered_cloud",
     "measure",

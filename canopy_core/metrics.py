@@ -33,6 +33,7 @@ __all__ = [
     "crown_candidates",
     "crown_diameters",
     "crown_mask",
+    "ground_rising",
     "height_density",
     "hull_volume",
     "max_horizontal_distance",
