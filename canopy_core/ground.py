@@ -241,10 +241,10 @@ def _world_rotation(up: np.ndarray, forward_hint: np.ndarray) -> np.ndarray:
 def _trunk_position(
     points_m: np.ndarray, contact: np.ndarray, rotation: np.ndarray
 ) -> tuple[np.ndarray, int]:
-    """Horizontal position of the trunk: the centre of the circle of a trunk's size along which the points of
-    a low slice near the balls' centroid cover the longest arc (seen from above, a trunk's bark is an arc or
-    a ring; grass and weeds are scattered dots). The median of the slice, which grass and weeds pull
-    aside, when no such circle is found."""
+    """Horizontal position of the trunk: the centre of the circle of a trunk's size that the most points of a
+    low slice near the balls' centroid lie on with nothing inside it (:func:`_bark_support`; seen from
+    above, a trunk's bark is an arc or a ring, grass and weeds are scattered dots). The median of the slice,
+    which grass and weeds pull aside, when no such circle is found."""
     world = (points_m - contact) @ rotation.T
     low, high = _TRUNK_SLICE_M
     in_slice = (world[:, 2] > low) & (world[:, 2] < high)

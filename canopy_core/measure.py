@@ -418,10 +418,10 @@ def balls_and_frame(
     except MeasurementError:
         again = None
     if again is not None:
-        registered = _registered(again, clouds, config)
-        trunk_xy = np.array(registered[1].trunk_xy_m)
-        if far_ball(registered[2], trunk_xy, config.balls.colors, config.balls.max_trunk_distance_m) is None:
-            return again, registered[0], registered[1]
+        poses, frame, centres_world = _registered(again, clouds, config)
+        trunk_xy = np.array(frame.trunk_xy_m)
+        if far_ball(centres_world, trunk_xy, config.balls.colors, config.balls.max_trunk_distance_m) is None:
+            return again, poses, frame
     raise balls_off_trunk(balls_world, np.array(ground.trunk_xy_m), config.balls.colors, far)
 
 
