@@ -85,6 +85,13 @@ _WIRE_FIT_REACH = 2.0
 _WIRE_MAX_LINES = 10
 """Most candidate lines examined: orchards string two to five wires, and each rejected candidate line
 takes its points out of the search."""
+_WIRE_STRETCH_M = 0.15
+"""A chain of thin-line cells that runs straight and level over this length in plan, parallel to a wire
+found, is a stretch of another wire of the trellis seen beside the crown: longer than a leaf (5-10 cm),
+where the Hough transform may rank chance lines of leaves first."""
+_WIRE_STRETCH_MAX_TURN_DEG = 10.0
+"""Such a chain runs within this angle of the wire found: its own direction, over a few cells of
+``tolerance_m``, errs by several degrees; the wire is then fitted along the found wire's direction."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -272,6 +279,28 @@ def find_wires(
             thin_pool = thin_pool[~members]
         else:
             sparse_pool = sparse_pool[~members]
+    if not wires:
+        return wires
+    for stretch in _parallel_stretches(thin_pool, wires[0], tolerance_m=tolerance_m):
+        if not stretch[wire_mask(thin_pool, wires, tolerance_m=tolerance_m, spread_m=spread_m)].any():
+            wire, members = _fit_wire(
+                thin_pool,
+                stretch,
+                roi_radius_m=roi_radius_m,
+                tolerance_m=tolerance_m,
+                direction_xy=wires[0].direction_xy,
+            )
+            if wire is not None and _crosses_as_wire(
+                wire,
+                thin_pool[members],
+                cells,
+                roi_radius_m=roi_radius_m,
+                max_slope=max_slope,
+                min_coverage=min_coverage,
+                first=wires[0],
+                sight=sight,
+            ):
+                wires.append(wire)
     return wires
 
 
@@ -490,6 +519,37 @@ def _best_parallel_line(pool_m: np.ndarray, parallel_to: Wire, *, tolerance_m: f
     chosen = line_key == keys[np.argmax(score)]
     centre = np.array([np.mean(across[chosen]), np.mean(rise[chosen])])
     return np.hypot(across - centre[0], rise - centre[1]) < tolerance_m
+
+
+def _parallel_stretches(pool_m: np.ndarray, parallel_to: Wire, *, tolerance_m: float) -> list[np.ndarray]:
+    """Masks over ``pool_m`` (thin-line cells) of its chains (cells joined within
+    :data:`_WIRE_NEIGHBOURHOOD_M`) that run straight and level (:func:`is_wire_piece`) over at least
+    :data:`_WIRE_STRETCH_M`, within :data:`_WIRE_STRETCH_MAX_TURN_DEG` of ``parallel_to``; longest first.
+
+    A wire that the crown hides along most of its chord shows only a short stretch on either side of it:
+    too little for the Hough transform to rank above the lines that leaves at the crown's edge form by
+    chance, but as long and as thin as no leaf is.
+    """
+    if pool_m.shape[0] < 3:
+        return []
+    pairs = cKDTree(pool_m).query_pairs(_WIRE_NEIGHBOURHOOD_M, output_type="ndarray")
+    graph = coo_matrix(
+        (np.ones(pairs.shape[0], dtype=np.int8), (pairs[:, 0], pairs[:, 1])), shape=(len(pool_m),) * 2
+    )
+    count, labels = connected_components(graph, directed=False)
+    stretches: list[tuple[float, np.ndarray]] = []
+    for chain in range(count):
+        members = labels == chain
+        points = pool_m[members]
+        if points.shape[0] < 3 or not is_wire_piece(
+            points, min_length_m=_WIRE_STRETCH_M, max_thickness_m=tolerance_m / 2
+        ):
+            continue
+        plan = points[:, :2] - points[:, :2].mean(axis=0)
+        direction = np.linalg.svd(plan, full_matrices=False)[2][0]
+        if abs(float(direction @ parallel_to.direction_xy)) >= np.cos(np.radians(_WIRE_STRETCH_MAX_TURN_DEG)):
+            stretches.append((float(np.ptp(plan @ direction)), members))
+    return [members for _, members in sorted(stretches, key=lambda item: -item[0])]
 
 
 def _fit_wire(
