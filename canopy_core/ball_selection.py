@@ -320,10 +320,12 @@ def _search_on_circles(
         if ground is None:
             continue
         for color in config.colors:
-            if shortlist.plausible[color]:
-                continue
-            circles = _circles(target, color, shortlists, grounds, ground, config)
-            for estimate, reach, centre in _likeliest_on_circles(view, circles, color, ground, config):
+            tries = [
+                found
+                for circle in _circles(target, color, shortlists, grounds, ground, config)
+                for found in _likeliest_on_circles(view, circle, color, ground, config)
+            ]
+            for estimate, reach, centre in tries:
                 found = view.sphere_near(estimate, color, config)
                 if found is None or any(
                     np.linalg.norm(found.fit.center_m - c.fit.center_m) < config.radius_m
@@ -345,11 +347,13 @@ def _likeliest_on_circles(
     ground: GroundPlane,
     config: BallConfig,
 ) -> list[tuple[np.ndarray, float, np.ndarray]]:
-    """The points of the circles (see :func:`_circles`) worth fitting a sphere at, each moved within
+    """The points of one circle (see :func:`_circles`) worth fitting a sphere at, each moved within
     ``_CIRCLE_SLACK_M`` (out, in, up, down: the circle errs by the other view's fits and the ground's
     unevenness) to where a ``color`` ball's surface support (:meth:`ViewBallCandidates.surface_support`) is
     best; those reaching ``config.min_completeness_where_placed``, best first, each at least a radius from a
-    better one, at most ``_CIRCLE_TRIES``."""
+    better one, at most ``_CIRCLE_TRIES``. Each circle has its own tries: a circle drawn from a look-alike
+    another view took for a ball passes grass and leaves that may support a ball's surface better than the
+    right circle's ball half hidden."""
     if not points:
         return []
     normal = ground.normal / np.linalg.norm(ground.normal)
@@ -387,8 +391,8 @@ def _circles(
     grounds: Sequence[GroundPlane | None],
     ground: GroundPlane,
     config: BallConfig,
-) -> list[tuple[np.ndarray, float, np.ndarray]]:
-    """Points to look for view ``target``'s ``color`` ball at: for each ball this view has (its likeliest
+) -> list[list[tuple[np.ndarray, float, np.ndarray]]]:
+    """Circles to look for view ``target``'s ``color`` ball on: for each ball this view has (its likeliest
     sphere) that another view shows together with ``color`` (their likeliest spheres), the circle of the
     points at their distance from it, at the height above this view's ground plane that the other view's
     ground puts it relative to that ball; sampled every ``_CIRCLE_STEP_RADII`` radii. Each point comes with
@@ -397,7 +401,7 @@ def _circles(
     axis_u = np.cross(normal, [1.0, 0.0, 0.0] if abs(normal[0]) < 0.9 else [0.0, 1.0, 0.0])
     axis_u /= np.linalg.norm(axis_u)
     axis_v = np.cross(normal, axis_u)
-    points: list[tuple[np.ndarray, float, np.ndarray]] = []
+    circles: list[list[tuple[np.ndarray, float, np.ndarray]]] = []
     for other, (anchor, anchor_ground) in enumerate(zip(shortlists, grounds, strict=True)):
         if other == target or not anchor.plausible[color]:
             continue
@@ -418,10 +422,10 @@ def _circles(
             middle = centre + rise * normal
             spread = float(np.sqrt(reach**2 - rise**2))
             angles = np.arange(0.0, 2 * np.pi, _CIRCLE_STEP_RADII * config.radius_m / spread)
-            points.extend(
-                (middle + spread * (np.cos(a) * axis_u + np.sin(a) * axis_v), reach, centre) for a in angles
+            circles.append(
+                [(middle + spread * (np.cos(a) * axis_u + np.sin(a) * axis_v), reach, centre) for a in angles]
             )
-    return points
+    return circles
 
 
 def _placements(
@@ -448,7 +452,7 @@ def _placements(
             rise = anchor_ground.height_of(centres[missing]) - beside / 2
         apart = float(np.linalg.norm(centres[others[0]] - centres[others[1]]))
         reach = [float(np.linalg.norm(centres[missing] - centres[i])) for i in others]
-        pairs = itertools.product(*(shortlist.plausible[config.colors[i]][:2] for i in others))
+        pairs = itertools.product(*(shortlist.plausible[config.colors[i]] for i in others))
         for first, second in pairs:
             a, b = first.fit.center_m, second.fit.center_m
             if abs(float(np.linalg.norm(a - b)) - apart) > config.max_distance_mismatch_m:
