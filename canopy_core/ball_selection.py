@@ -435,61 +435,48 @@ def _placements(
     missing: int,
     config: BallConfig,
 ) -> list[np.ndarray]:
-    """Where the other views place one view's ball of colour index ``missing`` (0, 2 or 4 points each).
+    """Where the other views place one view's ball of colour index ``missing``: one point per anchor and
+    pair of this view's spheres for the other two colours that stand at the anchor's distance apart.
 
-    The balls do not move: a triangle found whole in another view (an anchor) gives the distances from that
-    ball to the other two, and how much higher above the ground it stands than they do (a view's ground is
-    a plane; the ground under the balls undulates by centimetres). Two balls found in this view at the
-    anchor's distance from each other, and this view's ground plane, then place it on at most two points.
+    The balls do not move: a triangle found whole in another view (an anchor) is carried onto the pair by
+    the rigid motion that lays its two balls on the pair's and its ground's up on this view's (two points
+    and a direction fix a rigid motion). Both grounds are fitted on metres of floor round the balls, so
+    their normals agree within a degree or so, which moves the ball placed 0.6 m away by a centimetre;
+    and, unlike a guess of its height above this view's plane (which the floor's undulation under the
+    balls puts centimetres off, and two circles meeting at a slant turn into several more along the
+    floor), the motion keeps the triangle's turn: no mirror image.
     """
     others = [i for i in range(len(config.colors)) if i != missing][:2]
+    up = ground.normal / np.linalg.norm(ground.normal)
     placed = []
     for triangle, anchor_ground in anchors:
         centres = np.array([c.fit.center_m for c in triangle])
-        rise = 0.0
-        if anchor_ground is not None:
-            beside = anchor_ground.height_of(centres[others[0]]) + anchor_ground.height_of(centres[others[1]])
-            rise = anchor_ground.height_of(centres[missing]) - beside / 2
+        anchor_up = CAMERA_UP if anchor_ground is None else anchor_ground.normal
         apart = float(np.linalg.norm(centres[others[0]] - centres[others[1]]))
-        reach = [float(np.linalg.norm(centres[missing] - centres[i])) for i in others]
         pairs = itertools.product(*(shortlist.plausible[config.colors[i]] for i in others))
         for first, second in pairs:
             a, b = first.fit.center_m, second.fit.center_m
             if abs(float(np.linalg.norm(a - b)) - apart) > config.max_distance_mismatch_m:
                 continue
-            height = rise + (ground.height_of(a) + ground.height_of(b)) / 2
-            placed.extend(_third_ball((a, reach[0]), (b, reach[1]), ground, height))
+            there = _pair_frame(centres[others[0]], centres[others[1]], anchor_up)
+            here = _pair_frame(a, b, up)
+            if there is None or here is None:
+                continue
+            offset = centres[missing] - (centres[others[0]] + centres[others[1]]) / 2
+            placed.append((a + b) / 2 + here @ (there.T @ offset))
     return placed
 
 
-def _third_ball(
-    first: tuple[np.ndarray, float], second: tuple[np.ndarray, float], ground: GroundPlane, height_m: float
-) -> list[np.ndarray]:
-    """The points ``height_m`` above the ground plane at given distances from two ball centres (0 to 2).
-
-    ``first`` and ``second`` are each a centre and the distance the point must lie from it.
-    """
-    normal = ground.normal / np.linalg.norm(ground.normal)
-    origin = ground.point_m + height_m * normal
-    axis_u = np.cross(normal, [1.0, 0.0, 0.0] if abs(normal[0]) < 0.9 else [0.0, 1.0, 0.0])
-    axis_u /= np.linalg.norm(axis_u)
-    axis_v = np.cross(normal, axis_u)
-    planar = []
-    for centre, distance in (first, second):
-        offset = centre - origin
-        planar.append((np.array([offset @ axis_u, offset @ axis_v]), distance**2 - (offset @ normal) ** 2))
-    (a, a_sq), (b, b_sq) = planar
-    span = float(np.linalg.norm(b - a))
-    if a_sq <= 0.0 or b_sq <= 0.0 or span < 1e-6:
-        return []
-    along = (a_sq - b_sq + span**2) / (2.0 * span)
-    across_sq = a_sq - along**2
-    if across_sq < 0.0:
-        return []
-    direction = (b - a) / span
-    perpendicular = np.array([-direction[1], direction[0]])
-    in_plane = [a + along * direction + sign * np.sqrt(across_sq) * perpendicular for sign in (1.0, -1.0)]
-    return [origin + point[0] * axis_u + point[1] * axis_v for point in in_plane]
+def _pair_frame(a: np.ndarray, b: np.ndarray, up: np.ndarray) -> np.ndarray | None:
+    """The orthonormal frame (columns) of a pair of balls: along from ``a`` to ``b``, then ``up`` made square
+    to it, then their cross product; None when ``up`` runs along the pair."""
+    along = (b - a) / max(float(np.linalg.norm(b - a)), 1e-9)
+    square = up - (up @ along) * along
+    length = float(np.linalg.norm(square))
+    if length < 1e-6:
+        return None
+    square /= length
+    return np.column_stack([along, square, np.cross(along, square)])
 
 
 @dataclass(frozen=True)
@@ -594,7 +581,7 @@ def _consistent_choice(
     score is highest; None when there is none.
 
     Distances alone allow a mirror image: a look-alike where the ball would lie mirrored across the line
-    through the other two (the second place where the other balls put it, :func:`_third_ball`) makes a
+    through the other two (where the circles round the other two meet a second time) makes a
     triangle of the same sides, and registering it turns the view upside down."""
     best: tuple[float, list[tuple[BallCandidate, ...]]] | None = None
     for reference_score, reference in per_view[0]:
