@@ -6,7 +6,9 @@ view and ball or stage it names); the confident wrong answers (a measurement mor
 H, W or D without any error: the one outcome a user cannot see); and, per mode (each single view and the
 views merged) and metric (H, W, D), R², RMSE in centimetres and the average relative error ARE in percent
 against the simulator's ground truth, next to the paper's merged figures. A benchmark, not a test: it prints
-figures and asserts nothing. These are simulated trees: the paper's figures are field measurements against
+figures and asserts nothing. It also counts the trees registered on another sphere taken for a ball (a
+chosen ball more than 5 cm from the true one in its view): measured right by luck or by ICP, not by the
+balls. These are simulated trees: the paper's figures are field measurements against
 tape and pole, a different kind of number.
 
     .venv/bin/python bench/accuracy.py --scenario mixed --count 60 [--seed 2027] [--views 2] [--jobs 2]
@@ -25,13 +27,15 @@ from pathlib import Path
 import numpy as np
 
 from canopy_core.errors import CanopyError
-from canopy_core.measure import measure
+from canopy_core.measure import Measurement, measure
 from canopy_core.simulate import Scenario, simulate_capture
 
 METRICS = (("H", "height_m"), ("W", "width_m"), ("D", "thickness_m"))
 PAPER_MERGED_ARE = {"H": 2.5, "W": 3.6, "D": 3.2}
 CONFIDENTLY_WRONG = 0.10
 """A measurement more than this relative error off in H, W or D, reported without error, is wrong."""
+WRONG_SPHERE_M = 0.05
+"""A ball chosen this far from the true ball's centre (in its view) is another sphere taken for it."""
 
 
 def _measure_one(args: tuple[Path, int, int, str]) -> dict:
@@ -44,7 +48,18 @@ def _measure_one(args: tuple[Path, int, int, str]) -> dict:
         where = getattr(exc, "color", None) or exc.view or "capture"
         return {"seed": seed, "error": str(exc), "reason": f"{exc.code} ({where})"}
     modes = {name: metrics.to_dict() for name, metrics in result.modes.items()}
-    return {"seed": seed, "truth": truth, "modes": modes}
+    return {"seed": seed, "truth": truth, "modes": modes, "ball_errors_m": _ball_errors(result, truth)}
+
+
+def _ball_errors(result: Measurement, truth: dict) -> dict[str, float]:
+    """Per view and colour (``views/1 red``), how far the chosen ball's centre lies from the true one."""
+    errors = {}
+    for view in result.views:
+        view_from_world = np.linalg.inv(np.array(truth["views"][view.view]["camera_to_world"]))
+        for color, fit in view.balls.items():
+            actual = view_from_world @ np.append(truth["balls"][color]["center_m"], 1.0)
+            errors[f"{view.view} {color}"] = float(np.linalg.norm(fit.center_m - actual[:3]))
+    return errors
 
 
 def _table_row(predicted: np.ndarray, actual: np.ndarray) -> tuple[float, float, float]:
@@ -69,10 +84,12 @@ def _report(scenario: str, results: list[dict], options: argparse.Namespace) -> 
     failed = [r for r in results if "error" in r]
     done = [r for r in results if "error" not in r]
     wrong = [r for r in done if _worst_error(r)[1] > CONFIDENTLY_WRONG]
+    wrong_spheres = [r for r in done if max(r["ball_errors_m"].values()) > WRONG_SPHERE_M]
     share = 100 * len(done) / len(results)
     print(
         f"\n== {scenario}: {len(done)} of {len(results)} measured ({share:.1f} %), {len(failed)} failed, "
-        f"{len(wrong)} confidently wrong (>{CONFIDENTLY_WRONG:.0%} off, no error)"
+        f"{len(wrong)} confidently wrong (>{CONFIDENTLY_WRONG:.0%} off, no error), "
+        f"{len(wrong_spheres)} registered on another sphere taken for a ball (>{WRONG_SPHERE_M * 100:.0f} cm)"
     )
     for reason, count in Counter(r["reason"] for r in failed).most_common():
         print(f"  failed {count}x: {reason}")
@@ -81,6 +98,13 @@ def _report(scenario: str, results: list[dict], options: argparse.Namespace) -> 
     for r in wrong:
         short, error = _worst_error(r)
         print(f"  WRONG seed {r['seed']}: {short} off by {100 * error:.1f} %")
+    for r in wrong_spheres:
+        where = max(r["ball_errors_m"], key=r["ball_errors_m"].get)
+        short, error = _worst_error(r)
+        print(
+            f"  WRONG SPHERE seed {r['seed']}: {where} ball {100 * r['ball_errors_m'][where]:.0f} cm off; "
+            f"worst metric {short} {100 * error:.1f} % off"
+        )
     if not done:
         return
     mode_names = [name for name in done[0]["modes"] if name != "merged"] + ["merged"]
