@@ -438,6 +438,17 @@ def find_ball_candidates(
             config,
         )
         _add_candidates(candidates, peaks, i, scene, config)
+        if ground is not None:
+            shaded = _shaded_seeds(i, scene, ground, config)
+            if shaded.size >= config.min_points:
+                shaded_normals, shaded_ok = scene.normals(shaded, radius_m=config.radius_m)
+                shaded_votes = cloud.points_m[shaded[shaded_ok]] - config.radius_m * shaded_normals[shaded_ok]
+                peaks = _grounded_first(
+                    _vote_peaks(shaded_votes, scene.chroma[i, shaded[shaded_ok]], scene, config.radius_m),
+                    ground,
+                    config,
+                )
+                _add_candidates(candidates, peaks, i, scene, config)
         for least in (_SURE_LIKELIHOOD, _SEED_LIKELIHOOD):
             grouped = seeds[scene.likelihood[i, seeds] >= least]
             blobs = _blob_centres(
@@ -451,6 +462,24 @@ def find_ball_candidates(
         hsv_ranges=hsv_ranges,
         scene=scene,
     )
+
+
+def _shaded_seeds(color: int, scene: _Scene, ground: GroundPlane, config: BallConfig) -> np.ndarray:
+    """Indices of the points of a ball's hue too dark to seed (``_SEED_LIKELIHOOD`` of their chroma but not
+    of their likelihood) that stand where a ball resting on the ground has its surface: above the view's
+    ground plane, at most a diameter and ``config.max_ground_gap_m`` higher.
+
+    A ball in the shadow of the crown, or on the far side of the sun, keeps its hue but loses the brightness
+    the colour range asks for (a yellow ball read as RGB 16, 14, 2): its shape still shows it. Only the
+    floor's band is searched, where such points are few (soil and mulch in shade, dry leaves); the crown's
+    shade would add thousands of dark leaves and apples for nothing.
+    """
+    cloud = scene.cloud
+    dark = cloud.has_color & (scene.chroma[color] >= _SEED_LIKELIHOOD)
+    dark &= scene.likelihood[color] < _SEED_LIKELIHOOD
+    candidates = np.flatnonzero(dark)
+    height = (cloud.points_m[candidates] - ground.point_m) @ ground.normal
+    return candidates[(height > 0.0) & (height < config.diameter_m + config.max_ground_gap_m)]
 
 
 def _add_candidates(

@@ -219,3 +219,85 @@ def test_a_far_ball_mostly_hidden_is_found_where_the_other_view_places_it(tmp_pa
     result = measure(capture)
     assert "blue" in result.views[0].balls_found_by_position
     _assert_within_5_percent(result.merged, truth)
+
+
+def _ball_error_m(result: Measurement, truth: dict, view: str, color: str) -> float:
+    """How far the ball chosen for ``color`` in ``view`` lies from the simulator's ball, in that view."""
+    chosen = next(v for v in result.views if v.view == view).balls[color].center_m
+    view_from_world = np.linalg.inv(np.array(truth["views"][view]["camera_to_world"]))
+    actual = view_from_world @ np.append(truth["balls"][color]["center_m"], 1.0)
+    return float(np.linalg.norm(chosen - actual[:3]))
+
+
+def test_each_view_missing_another_ball_finds_it_round_the_one_both_see(tmp_path: Path) -> None:
+    """Mixed seed 2033035, found by the accuracy benchmark: views/1 shows its yellow ball in deep shade and
+    views/2 half its red ball, neither as a sphere of its own; each view's likeliest spheres of those
+    colours are apples and straw. Only the blue ball is found in both, so no view has a whole triangle to
+    place the others. Each missing ball is sought on the circle round the blue ball at the distance the
+    other view shows, even where look-alikes of its colour were found: the capture failed, now it is
+    measured on the right balls."""
+    capture = simulate_capture(tmp_path / "tree", seed=2033035, n_views=2, scenario="mixed")
+    truth = _truth(capture)
+    result = measure(capture)
+    assert "yellow" in result.views[0].balls_found_by_position
+    assert "red" in result.views[1].balls_found_by_position
+    for view in ("views/1", "views/2"):
+        for color in ("red", "yellow", "blue"):
+            assert _ball_error_m(result, truth, view, color) < 0.02, (view, color)
+    _assert_within_5_percent(result.merged, truth)
+
+
+def test_a_ball_is_placed_by_the_other_view_s_triangle_carried_onto_this_view_s_ground(
+    tmp_path: Path,
+) -> None:
+    """Mixed seed 2029047, found by the accuracy benchmark: views/2 shows 15 points of its red ball. Placed
+    by the other view's triangle at the height that view's ground gives it, the guess fell 7 cm off the
+    ball and nothing was found there; a red apple on the ground that both views see was taken instead, 1.4 m
+    from the trunk. Carried rigidly by the pair of balls and the ground's up, the triangle puts the ball
+    within a centimetre or two, where its fragment is found."""
+    capture = simulate_capture(tmp_path / "tree", seed=2029047, n_views=2, scenario="mixed")
+    truth = _truth(capture)
+    result = measure(capture)
+    assert "red" in result.views[1].balls_found_by_position
+    assert _ball_error_m(result, truth, "views/2", "red") < 0.02
+    _assert_within_5_percent(result.merged, truth)
+
+
+def test_a_ball_is_placed_from_every_likely_pair_not_only_the_two_likeliest(tmp_path: Path) -> None:
+    """Mixed seed 2033015, found by the accuracy benchmark: views/1 shows a third of its blue ball. The
+    other view's triangle places it from this view's red and yellow balls, but two look-alikes of the
+    yellow ball scored above the yellow ball itself, and only the two likeliest were paired."""
+    capture = simulate_capture(tmp_path / "tree", seed=2033015, n_views=2, scenario="mixed")
+    truth = _truth(capture)
+    result = measure(capture)
+    assert "blue" in result.views[0].balls_found_by_position
+    assert _ball_error_m(result, truth, "views/1", "blue") < 0.02
+    _assert_within_5_percent(result.merged, truth)
+
+
+def test_a_ball_in_deep_shade_is_found_by_its_shape(tmp_path: Path) -> None:
+    """Mixed seed 2033034, found by the accuracy benchmark: in views/2 the yellow ball lies whole in view in
+    the crown's shadow, read as RGB 16, 14, 2: its hue is the ball's, its brightness too low for its colour
+    range, so none of its points voted for a sphere. Dark points of its hue in the floor's band vote too:
+    the ball is found as a sphere of its own, and the capture, which failed, is measured on the right
+    balls."""
+    capture = simulate_capture(tmp_path / "tree", seed=2033034, n_views=2, scenario="mixed")
+    truth = _truth(capture)
+    result = measure(capture)
+    assert "yellow" not in result.views[1].balls_found_by_position
+    for view in ("views/1", "views/2"):
+        for color in ("red", "yellow", "blue"):
+            assert _ball_error_m(result, truth, view, color) < 0.02, (view, color)
+    _assert_within_5_percent(result.merged, truth)
+
+
+def test_a_wire_the_crown_hides_but_for_a_span_each_side_does_not_widen_the_tree(tmp_path: Path) -> None:
+    """Mixed seed 2033032, found by the accuracy benchmark: the lower of two trellis wires runs through the
+    crown at the cameras' height and shows only 20 cm beyond the crown on one side and a few centimetres
+    on the other; leaves at the crown's edge form longer lines by chance, so the search for wires parallel
+    to the upper one never tried it, and W came out 17.7 % wide with no error. A straight, level chain of
+    thin-line points parallel to the wire found is tried as a wire too."""
+    capture = simulate_capture(tmp_path / "tree", seed=2033032, n_views=2, scenario="mixed")
+    truth = _truth(capture)
+    result = measure(capture)
+    _assert_within_5_percent(result.merged, truth)
