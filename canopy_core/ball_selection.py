@@ -223,8 +223,8 @@ def select_balls(
     # The likeliest triangles of each view place the balls in the others first, even where some combination
     # agrees already: a look-alike that both views see (an apple lying on the ground) agrees too, and must
     # compete with a ball one view sees whole and another only in part. Only if no combination agrees then,
-    # a missing ball is sought at the distance another view puts it from a ball this view has (which may
-    # complete a triangle that places the rest).
+    # each ball is sought at the distance another view puts it from a ball this view has (which may
+    # complete a triangle that places the rest), even where look-alikes of its colour were found.
     searches = (
         (_search_where_placed, _search_on_circles, _search_where_placed)
         if len(views) > 1 and len(config.colors) >= 3
@@ -305,14 +305,16 @@ def _search_on_circles(
     grounds: Sequence[GroundPlane | None],
     config: BallConfig,
 ) -> list[list[BallCandidate]]:
-    """Look for a view's missing ball at the distance another view shows between it and a ball this view
+    """Look for each of a view's balls at the distance another view shows between it and a ball this view
     has: on a circle round that ball, at its height above the ground plane (:func:`_circles`). A sphere
     found there (:meth:`ViewBallCandidates.sphere_near`, where the circle's points have the most surface
     support, :func:`_likeliest_on_circles`) joins the colour's shortlist.
 
-    For a view that found one or two balls where no view found all three (so nothing places the rest):
+    For views that share too few balls for any to hold a whole triangle (so nothing places the rest):
     the sphere found on the circle completes a triangle, which must then agree with the other views, or
-    place their missing balls where spheres must be found in turn. Returns, per view, the spheres added.
+    place their missing balls where spheres must be found in turn. A colour whose likely spheres are all
+    look-alikes (apples, straw) is sought too: the ball itself may be the fragment no search found.
+    Returns, per view, the spheres added.
     """
     del per_view  # the circles need pairs of balls, not whole triangles
     added: list[list[BallCandidate]] = [[] for _ in views]

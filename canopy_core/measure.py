@@ -2,8 +2,8 @@
 
 Stages, each reported to the progress callback by name: ``load`` (capture read and checked), ``filter``
 (back-projection without flying pixels), ``balls`` (ball detection per view), ``register`` (ball
-registration into the first view's frame), ``ground`` (world frame from the ground), ``refine`` (gated
-ICP), ``metrics`` (per view and merged: the paper's V1, V2 and V1+V2 modes) and ``done``.
+registration into the first view's frame, and the world frame from the ground and the trunk), ``refine``
+(gated ICP), ``metrics`` (per view and merged: the paper's V1, V2 and V1+V2 modes) and ``done``.
 """
 
 from __future__ import annotations

@@ -10,9 +10,10 @@ pixels, see :func:`wire_mask`), that crosses the whole cylinder, hidden where it
 a branch is thicker, and ends inside the crown. So the first wire is sought by a Hough transform over
 level lines (direction, offset, height) among the points whose neighbourhood, in one view, is a thin line
 (local principal components); the trellis's other wires run beside it, so they are sought parallel to it,
-among all the points with a sparse neighbourhood. A line is a wire when it is nearly level, seen over a length
-that leaves and twigs never line up over, and crosses the cylinder: its own points and what hides it
-cover most of its chord. Its points are then removed along its whole length, inside the crown too.
+among all the points with a sparse neighbourhood, and from each straight, level chain of thin-line
+points parallel to it (a wire the crown hides but for a short stretch). A line is a wire when it is
+nearly level, seen over a length that leaves and twigs never line up over, and crosses the cylinder: its
+own points and what hides it cover most of its chord. Its points are then removed along its whole length, inside the crown too.
 
 The other intruders are separated from the tree by a gap. The tree itself need not be one connected body
 in the data: thin scaffold branches hidden by leaves leave its crown floating above its trunk. So the
