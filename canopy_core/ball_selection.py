@@ -313,7 +313,9 @@ def _search_on_circles(
     For views that share too few balls for any to hold a whole triangle (so nothing places the rest):
     the sphere found on the circle completes a triangle, which must then agree with the other views, or
     place their missing balls where spheres must be found in turn. A colour whose likely spheres are all
-    look-alikes (apples, straw) is sought too: the ball itself may be the fragment no search found.
+    look-alikes (apples, straw) is sought too: the ball itself may be the fragment no search found; but
+    then the sphere must show the colour's hue (``min_color_score``), as a ball in shade does, where a
+    colour with no likely sphere at all takes any sphere (a ball nearly black in deep shade).
     Returns, per view, the spheres added.
     """
     del per_view  # the circles need pairs of balls, not whole triangles
@@ -322,6 +324,7 @@ def _search_on_circles(
         if ground is None:
             continue
         for color in config.colors:
+            look_alikes = bool(shortlist.plausible[color])
             tries = [
                 found
                 for circle in _circles(target, color, shortlists, grounds, ground, config)
@@ -329,7 +332,9 @@ def _search_on_circles(
             ]
             for estimate, reach, centre in tries:
                 found = view.sphere_near(estimate, color, config)
-                if found is None or any(
+                if found is None or (look_alikes and found.color_scores[color] < config.min_color_score):
+                    continue
+                if any(
                     np.linalg.norm(found.fit.center_m - c.fit.center_m) < config.radius_m
                     for c in shortlist.plausible[color]
                 ):

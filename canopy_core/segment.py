@@ -13,7 +13,8 @@ level lines (direction, offset, height) among the points whose neighbourhood, in
 among all the points with a sparse neighbourhood, and from each straight, level chain of thin-line
 points parallel to it (a wire the crown hides but for a short stretch). A line is a wire when it is
 nearly level, seen over a length that leaves and twigs never line up over, and crosses the cylinder: its
-own points and what hides it cover most of its chord. Its points are then removed along its whole length, inside the crown too.
+own points and what hides it cover most of its chord. Its points are then removed along its whole
+length, inside the crown too.
 
 The other intruders are separated from the tree by a gap. The tree itself need not be one connected body
 in the data: thin scaffold branches hidden by leaves leave its crown floating above its trunk. So the
