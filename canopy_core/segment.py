@@ -241,20 +241,10 @@ def find_wires(
     thin_pool = cells[np.concatenate([thin for _, thin in line_cells])]
     max_slope = float(np.tan(np.radians(max_slope_deg)))
     wires: list[Wire] = []
-    for tried in range(_WIRE_MAX_LINES):
-        # The first wire is sought among thin lines in any direction; the trellis's other wires run beside
-        # it, so they are sought parallel to it, also where they are seen too briefly to look thin.
-        first = wires[0] if wires else None
-        if first is None and tried == _FIRST_WIRE_TRIES:
-            break
-        pool = thin_pool if first is None else sparse_pool
-        members = (
-            _best_line(pool, tolerance_m=tolerance_m, roi_radius_m=roi_radius_m)
-            if first is None
-            else _best_parallel_line(pool, first, tolerance_m=tolerance_m)
-        )
-        if members is None:
-            break
+
+    def tried(pool: np.ndarray, members: np.ndarray, first: Wire | None) -> tuple[Wire | None, np.ndarray]:
+        """The wire fitted to ``members`` of ``pool`` (parallel to ``first`` when given) if it is one, and
+        the pool's points near the fitted line."""
         wire, members = _fit_wire(
             pool,
             members,
@@ -262,7 +252,7 @@ def find_wires(
             tolerance_m=tolerance_m,
             direction_xy=None if first is None else first.direction_xy,
         )
-        if wire is not None and _crosses_as_wire(
+        if wire is None or not _crosses_as_wire(
             wire,
             pool[members],
             cells,
@@ -272,6 +262,25 @@ def find_wires(
             first=first,
             sight=sight,
         ):
+            return None, members
+        return wire, members
+
+    for attempt in range(_WIRE_MAX_LINES):
+        # The first wire is sought among thin lines in any direction; the trellis's other wires run beside
+        # it, so they are sought parallel to it, also where they are seen too briefly to look thin.
+        first = wires[0] if wires else None
+        if first is None and attempt == _FIRST_WIRE_TRIES:
+            break
+        pool = thin_pool if first is None else sparse_pool
+        members = (
+            _best_line(pool, tolerance_m=tolerance_m, roi_radius_m=roi_radius_m)
+            if first is None
+            else _best_parallel_line(pool, first, tolerance_m=tolerance_m)
+        )
+        if members is None:
+            break
+        wire, members = tried(pool, members, first)
+        if wire is not None:
             wires.append(wire)
             thin_pool = thin_pool[~wire_mask(thin_pool, [wire], tolerance_m=tolerance_m, spread_m=spread_m)]
             sparse_pool = sparse_pool[
@@ -285,23 +294,8 @@ def find_wires(
         return wires
     for stretch in _parallel_stretches(thin_pool, wires[0], tolerance_m=tolerance_m):
         if not stretch[wire_mask(thin_pool, wires, tolerance_m=tolerance_m, spread_m=spread_m)].any():
-            wire, members = _fit_wire(
-                thin_pool,
-                stretch,
-                roi_radius_m=roi_radius_m,
-                tolerance_m=tolerance_m,
-                direction_xy=wires[0].direction_xy,
-            )
-            if wire is not None and _crosses_as_wire(
-                wire,
-                thin_pool[members],
-                cells,
-                roi_radius_m=roi_radius_m,
-                max_slope=max_slope,
-                min_coverage=min_coverage,
-                first=wires[0],
-                sight=sight,
-            ):
+            wire, _ = tried(thin_pool, stretch, wires[0])
+            if wire is not None:
                 wires.append(wire)
     return wires
 

@@ -229,6 +229,17 @@ def _ball_error_m(result: Measurement, truth: dict, view: str, color: str) -> fl
     return float(np.linalg.norm(chosen - actual[:3]))
 
 
+def _assert_placed_and_measured(tmp_path: Path, *, seed: int, view: str, color: str) -> None:
+    """The mixed capture of ``seed`` is measured right, with its ``color`` ball in ``view`` found where the
+    other view places it, within 2 cm of the true ball."""
+    capture = simulate_capture(tmp_path / "tree", seed=seed, n_views=2, scenario="mixed")
+    truth = _truth(capture)
+    result = measure(capture)
+    assert color in next(v for v in result.views if v.view == view).balls_found_by_position
+    assert _ball_error_m(result, truth, view, color) < 0.02
+    _assert_within_5_percent(result.merged, truth)
+
+
 def test_each_view_missing_another_ball_finds_it_round_the_one_both_see(tmp_path: Path) -> None:
     """Mixed seed 2033035, found by the accuracy benchmark: views/1 shows its yellow ball in deep shade and
     views/2 half its red ball, neither as a sphere of its own; each view's likeliest spheres of those
@@ -255,24 +266,14 @@ def test_a_ball_is_placed_by_the_other_view_s_triangle_carried_onto_this_view_s_
     ball and nothing was found there; a red apple on the ground that both views see was taken instead, 1.4 m
     from the trunk. Carried rigidly by the pair of balls and the ground's up, the triangle puts the ball
     within a centimetre or two, where its fragment is found."""
-    capture = simulate_capture(tmp_path / "tree", seed=2029047, n_views=2, scenario="mixed")
-    truth = _truth(capture)
-    result = measure(capture)
-    assert "red" in result.views[1].balls_found_by_position
-    assert _ball_error_m(result, truth, "views/2", "red") < 0.02
-    _assert_within_5_percent(result.merged, truth)
+    _assert_placed_and_measured(tmp_path, seed=2029047, view="views/2", color="red")
 
 
 def test_a_ball_is_placed_from_every_likely_pair_not_only_the_two_likeliest(tmp_path: Path) -> None:
     """Mixed seed 2033015, found by the accuracy benchmark: views/1 shows a third of its blue ball. The
     other view's triangle places it from this view's red and yellow balls, but two look-alikes of the
     yellow ball scored above the yellow ball itself, and only the two likeliest were paired."""
-    capture = simulate_capture(tmp_path / "tree", seed=2033015, n_views=2, scenario="mixed")
-    truth = _truth(capture)
-    result = measure(capture)
-    assert "blue" in result.views[0].balls_found_by_position
-    assert _ball_error_m(result, truth, "views/1", "blue") < 0.02
-    _assert_within_5_percent(result.merged, truth)
+    _assert_placed_and_measured(tmp_path, seed=2033015, view="views/1", color="blue")
 
 
 def test_a_ball_in_deep_shade_is_found_by_its_shape(tmp_path: Path) -> None:
