@@ -459,18 +459,19 @@ def _placements(
     for triangle, anchor_ground in anchors:
         centres = np.array([c.fit.center_m for c in triangle])
         anchor_up = CAMERA_UP if anchor_ground is None else anchor_ground.normal
+        there = _pair_frame(centres[others[0]], centres[others[1]], anchor_up)
+        if there is None:
+            continue
+        in_pair_frame = there.T @ (centres[missing] - (centres[others[0]] + centres[others[1]]) / 2)
         apart = float(np.linalg.norm(centres[others[0]] - centres[others[1]]))
         pairs = itertools.product(*(shortlist.plausible[config.colors[i]] for i in others))
         for first, second in pairs:
             a, b = first.fit.center_m, second.fit.center_m
             if abs(float(np.linalg.norm(a - b)) - apart) > config.max_distance_mismatch_m:
                 continue
-            there = _pair_frame(centres[others[0]], centres[others[1]], anchor_up)
             here = _pair_frame(a, b, up)
-            if there is None or here is None:
-                continue
-            offset = centres[missing] - (centres[others[0]] + centres[others[1]]) / 2
-            placed.append((a + b) / 2 + here @ (there.T @ offset))
+            if here is not None:
+                placed.append((a + b) / 2 + here @ in_pair_frame)
     return placed
 
 
