@@ -292,11 +292,13 @@ def find_wires(
             sparse_pool = sparse_pool[~members]
     if not wires:
         return wires
+    claimed = wire_mask(thin_pool, wires, tolerance_m=tolerance_m, spread_m=spread_m)
     for stretch in _parallel_stretches(thin_pool, wires[0], tolerance_m=tolerance_m):
-        if not stretch[wire_mask(thin_pool, wires, tolerance_m=tolerance_m, spread_m=spread_m)].any():
+        if not stretch[claimed].any():
             wire, _ = tried(thin_pool, stretch, wires[0])
             if wire is not None:
                 wires.append(wire)
+                claimed |= wire_mask(thin_pool, [wire], tolerance_m=tolerance_m, spread_m=spread_m)
     return wires
 
 
@@ -534,12 +536,10 @@ def _parallel_stretches(pool_m: np.ndarray, parallel_to: Wire, *, tolerance_m: f
     )
     count, labels = connected_components(graph, directed=False)
     stretches: list[tuple[float, np.ndarray]] = []
-    for chain in range(count):
+    for chain in np.flatnonzero(np.bincount(labels, minlength=count) >= 3):
         members = labels == chain
         points = pool_m[members]
-        if points.shape[0] < 3 or not is_wire_piece(
-            points, min_length_m=_WIRE_STRETCH_M, max_thickness_m=tolerance_m / 2
-        ):
+        if not is_wire_piece(points, min_length_m=_WIRE_STRETCH_M, max_thickness_m=tolerance_m / 2):
             continue
         plan = points[:, :2] - points[:, :2].mean(axis=0)
         direction = np.linalg.svd(plan, full_matrices=False)[2][0]
