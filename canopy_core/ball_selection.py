@@ -36,8 +36,6 @@ __all__ = [
 
 _CANDIDATES_PER_COLOR = 4
 """The likeliest plausible spheres per colour and view that the joint choice considers (4³ triangles)."""
-_ANCHORS = 2
-"""The likeliest whole triangles per view that place the balls missing from other views."""
 _CIRCLE_STEP_RADII = 0.25
 """Along a circle where a missing ball may lie, the surface support of a ball is weighed every this many ball
 radii (a guess this close to a ball's centre finds most of its surface)."""
@@ -270,15 +268,13 @@ def _search_where_placed(
     grounds: Sequence[GroundPlane | None],
     config: BallConfig,
 ) -> list[list[BallCandidate]]:
-    """Look for each view's balls where the other views place them (:func:`_placements`); a sphere found
-    there (:meth:`ViewBallCandidates.sphere_near`) joins that colour's shortlist however little of its
-    colour it showed. Returns, per view, the spheres added."""
+    """Look for each view's balls where the other views place them (:func:`_placements`): every triangle of
+    another view does, not only its likeliest (apples and straw may score above the balls themselves, and
+    a triangle holding one places the missing ball wrong). A sphere found there
+    (:meth:`ViewBallCandidates.sphere_near`) joins that colour's shortlist however little of its colour it
+    showed. Returns, per view, the spheres added."""
     added: list[list[BallCandidate]] = [[] for _ in views]
-    anchors = [
-        (a, triangle, grounds[a])
-        for a, triangles in enumerate(per_view)
-        for _, triangle in triangles[:_ANCHORS]
-    ]
+    anchors = [(a, triangle, grounds[a]) for a, triangles in enumerate(per_view) for _, triangle in triangles]
     for target, (view, shortlist, ground) in enumerate(zip(views, shortlists, grounds, strict=True)):
         if ground is None:
             continue
