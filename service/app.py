@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from fastapi import FastAPI
 
+from canopy_core import __version__
 from service import health
 from service.captures import endpoints as captures
 from service.context import Context
@@ -20,7 +21,7 @@ def create_app(context: Context | None = None) -> FastAPI:
     """The API over ``context`` (default: built from the ``CANOPY_*`` environment)."""
     app = FastAPI(
         title="Canopy",
-        version="1",
+        version=__version__,
         summary="Measures fruit-tree canopies (height, width, crown thickness) from RGB-D captures.",
         description="All lengths are metres. Every route but /healthz needs `Authorization: Bearer <key>`.",
     )

@@ -189,7 +189,7 @@ def watch(
     """Keep running: send new capture folders under ROOT as they appear, and when the network is back."""
     from service.client.commands import run_watch
 
-    run_watch(root, server=server, key=key, interval_s=interval, settle_s=settle)
+    raise typer.Exit(run_watch(root, server=server, key=key, interval_s=interval, settle_s=settle))
 
 
 @keys_app.command("create")

@@ -12,7 +12,7 @@ from service.keys.service import authenticate, grants
 from service.models import ApiKey
 from service.problems import Forbidden, Unauthorized
 
-__all__ = ["AdminKey", "CaptureKey", "CaptureOrReadKey", "ContextDep", "ReadKey"]
+__all__ = ["AdminKey", "AnyKey", "CaptureKey", "CaptureOrReadKey", "ContextDep", "ReadKey"]
 
 
 def get_context(request: Request) -> Context:
@@ -52,3 +52,5 @@ CaptureKey = Annotated[ApiKey, Depends(_require("capture"))]
 AdminKey = Annotated[ApiKey, Depends(_require("admin"))]
 CaptureOrReadKey = Annotated[ApiKey, Depends(_require("capture", "read"))]
 """For what an uploading client must see of its own work: which files a capture misses, its job's state."""
+AnyKey = Annotated[ApiKey, Depends(_require("capture", "read", "admin"))]
+"""Any valid key, whatever its scopes: for what a client asks before it starts (who am I, is it up)."""

@@ -5,7 +5,7 @@ from __future__ import annotations
 from fastapi import APIRouter
 from sqlalchemy.exc import SQLAlchemyError
 
-from service.deps import ContextDep, ReadKey
+from service.deps import AnyKey, ContextDep
 from service.problems import ApiError
 
 __all__ = ["router"]
@@ -24,7 +24,7 @@ def healthz() -> dict[str, str]:
 
 
 @router.get("/readyz")
-def readyz(context: ContextDep, _key: ReadKey) -> dict[str, str]:
+def readyz(context: ContextDep, _key: AnyKey) -> dict[str, str]:
     """The database answers; 503 problem+json when it does not."""
     try:
         context.database.ping()

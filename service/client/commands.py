@@ -1,7 +1,10 @@
 """``canopy upload`` and ``canopy watch``: the uploader with progress bars, a results table and a loop.
 
 Progress bars (one for the row, one per capture, in bytes and files) appear on a terminal only; elsewhere
-each capture gets one line. Errors name the capture folder and the file, on stderr.
+each capture gets one line. Errors name the capture folder and the file, on stderr, as do outages: the
+first failed attempt is said at once, terminal or not. Before anything is sent, the server is asked who
+the key is: an address that is not a Canopy service, a refused key, or ``--wait`` with a key that may not
+read measurements ends the run at once with one line.
 """
 
 from __future__ import annotations
@@ -14,12 +17,13 @@ from rich.progress import BarColumn, DownloadColumn, Progress, TaskID, TextColum
 from rich.table import Table
 
 from service.client.receipts import RECEIPT_NAME, Receipt
-from service.client.transport import RequestRefused, ServerUnreachable, Transport
+from service.client.transport import RequestRefused, ServerUnreachable, ServerUnusable, Transport
 from service.client.upload import (
     Uploader,
     UploadOutcome,
     files_to_send,
     find_captures,
+    finished_jobs,
     receipt_complete,
     wait_for_jobs,
 )
@@ -78,35 +82,92 @@ def _upload_all(
     return outcomes
 
 
+def _measured(outcome: UploadOutcome) -> tuple[list[str], str]:
+    """A finished job's H, W, D (metres, as text; empty when it failed) and a note: the failure's view,
+    ball and message."""
+    measurement = outcome.result.get("measurement")
+    if measurement is not None:
+        return [f"{measurement[key]:.3f}" for key in ("height_m", "width_m", "thickness_m")], ""
+    error = outcome.result.get("job", {}).get("error") or {}
+    note = error.get("message", outcome.result.get("refused", ""))
+    where = " ".join(str(error[key]) for key in ("view", "color") if error.get(key))
+    return ["", "", ""], f"{where}: {note}" if where else note
+
+
 def _results_table(outcomes: list[UploadOutcome]) -> Table:
     table = Table("tree", "state", "H (m)", "W (m)", "D (m)", "note")
     for outcome in outcomes:
-        job = outcome.result.get("job", {})
-        measurement = outcome.result.get("measurement")
-        if measurement is not None:
-            values = [f"{measurement[key]:.3f}" for key in ("height_m", "width_m", "thickness_m")]
-            note = ""
-        else:
-            values = ["", "", ""]
-            error = job.get("error") or {}
-            note = error.get("message", outcome.result.get("refused", ""))
-            where = " ".join(str(error[key]) for key in ("view", "color") if error.get(key))
-            note = f"{where}: {note}" if where else note
-        table.add_row(outcome.tree, job.get("state", ""), *values, note)
+        values, note = _measured(outcome)
+        table.add_row(outcome.tree, outcome.result.get("job", {}).get("state", ""), *values, note)
     return table
+
+
+_USAGE = 2
+"""Exit code of a run that could not start: a wrong address or a key that may not do what was asked."""
+
+
+class _CannotStart(Exception):
+    """The run cannot start; the message is said in one line and ``code`` is the exit code."""
+
+    def __init__(self, message: str, code: int = _USAGE) -> None:
+        super().__init__(message)
+        self.code = code
+
+
+def _connect(server: str, key: str, retry_for_s: float, errors: Console) -> tuple[Transport, list[str]]:
+    """A transport to ``server`` whose key the server knows, and the key's scopes; outages are said on
+    ``errors`` as they begin and end. Raises :class:`_CannotStart`."""
+    try:
+        transport = Transport(
+            server,
+            key,
+            retry_for_s=retry_for_s,
+            notice=lambda message: errors.print(message, highlight=False),
+        )
+    except ServerUnusable as exc:
+        raise _CannotStart(str(exc)) from exc
+    try:
+        return transport, list(transport.identify()["key"]["scopes"])
+    except ServerUnusable as exc:
+        transport.close()
+        raise _CannotStart(str(exc)) from exc
+    except RequestRefused as exc:
+        transport.close()
+        raise _CannotStart(f"{transport.server} refused the key: {exc}") from exc
+    except ServerUnreachable as exc:
+        transport.close()
+        raise _CannotStart(str(exc), code=1) from exc
+
+
+def _may_read(scopes: list[str]) -> bool:
+    return bool({"read", "admin"} & set(scopes))
 
 
 def run_upload(root: Path, *, server: str, key: str, wait: bool, retry_for_s: float) -> int:
     """Upload every capture under ``root``; with ``wait``, print each tree's H, W, D as jobs finish.
 
-    Returns the exit code: 0 when every capture is on the server (and, with ``wait``, measured), else 1.
+    Returns the exit code: 0 when every capture is on the server (and, with ``wait``, measured), 2 when
+    the run could not start (an address that is not a Canopy service, a refused key, ``wait`` with a key
+    that may not read), else 1.
     """
     console, errors = Console(soft_wrap=True), Console(stderr=True, soft_wrap=True)
     folders = find_captures(root)
     if not folders:
         errors.print(f"no capture folder (with capture.json) under {root}")
         return 1
-    transport = Transport(server, key, retry_for_s=retry_for_s)
+    try:
+        transport, scopes = _connect(server, key, retry_for_s, errors)
+    except _CannotStart as exc:
+        errors.print(f"[red]✗[/red] {exc}", highlight=False)
+        return exc.code
+    if wait and not _may_read(scopes):
+        transport.close()
+        errors.print(
+            "[red]✗[/red] --wait shows the measurements, which needs a key with the read scope; this key "
+            f"has {', '.join(scopes)}. Upload without --wait, or with a key that has capture and read",
+            highlight=False,
+        )
+        return _USAGE
     finished: list[UploadOutcome] = []
     try:
         outcomes = _upload_all(Uploader(transport), folders, console, errors)
@@ -138,19 +199,37 @@ def _snapshot(folder: Path) -> tuple[tuple[str, int, int], ...]:
     )
 
 
-def run_watch(root: Path, *, server: str, key: str, interval_s: float, settle_s: float) -> None:
-    """Upload capture folders under ``root`` as they appear, until interrupted.
+def _say_measured(console: Console, errors: Console, outcome: UploadOutcome) -> None:
+    values, note = _measured(outcome)
+    if outcome.result["job"]["state"] == "succeeded" and all(values):
+        height, width, thickness = values
+        console.print(f"{outcome.tree}: measured H {height} m, W {width} m, D {thickness} m", highlight=False)
+    else:
+        errors.print(f"[red]✗[/red] {outcome.tree}: measurement failed: {note}", highlight=False)
+
+
+def run_watch(root: Path, *, server: str, key: str, interval_s: float, settle_s: float) -> int:
+    """Upload capture folders under ``root`` as they appear, until interrupted; returns the exit code.
 
     A folder is sent once it has stayed the same (its files, sizes and times) for ``settle_s`` (the
     capture software has finished writing it). While the server cannot be reached, the scan stops and
-    starts again at the next one; a folder the checks or the server refuse is reported once, and again
-    only after it changes. A folder that changes after its upload is looked at again.
+    starts again at the next one (the outage is said as it begins and ends); a folder the checks or the
+    server refuse is reported once, and again only after it changes. A folder that changes after its
+    upload is looked at again. With a key that may read, each measurement is printed as it completes.
     """
     console, errors = Console(soft_wrap=True), Console(stderr=True, soft_wrap=True)
-    transport = Transport(server, key, retry_for_s=max(interval_s, 30.0))
+    try:
+        transport, scopes = _watch_connect(server, key, interval_s, errors)
+    except _CannotStart as exc:
+        errors.print(f"[red]✗[/red] {exc}", highlight=False)
+        return exc.code
+    except KeyboardInterrupt:
+        console.print("stopped")
+        return 0
     uploader = Uploader(transport, verify_done=False)
     seen: dict[Path, tuple[tuple[tuple[str, int, int], ...], float]] = {}
     refused: dict[Path, tuple[tuple[str, int, int], ...]] = {}
+    measuring: list[UploadOutcome] = []
     console.print(f"watching {root} for captures to send to {transport.server} (Ctrl-C stops)")
     try:
         while True:
@@ -168,13 +247,52 @@ def run_watch(root: Path, *, server: str, key: str, interval_s: float, settle_s:
                     errors.print(f"[red]✗[/red] {folder}: {type(exc).__name__}: {exc}", highlight=False)
                     refused[folder] = snapshot
                     continue
-                _report(console, errors, outcome)
                 if outcome.retryable:
-                    break  # the server is out of reach: the other folders would only wait for it too
+                    errors.print(
+                        f"… {folder}: not sent yet, the server is out of reach for now; the next scan, in "
+                        f"{interval_s:g} s, tries again",
+                        highlight=False,
+                    )
+                    break  # the other folders would only wait for the server too
+                _report(console, errors, outcome)
                 if outcome.error is not None:
                     refused[folder] = snapshot
+                elif outcome.job_id is not None and _may_read(scopes):
+                    measuring.append(outcome)
+            measuring = _report_measured(transport, measuring, console, errors)
             time.sleep(interval_s)
     except KeyboardInterrupt:
         console.print("stopped")
     finally:
         transport.close()
+    return 0
+
+
+def _watch_connect(server: str, key: str, interval_s: float, errors: Console) -> tuple[Transport, list[str]]:
+    """:func:`_connect` for a watch, which may start before the laptop is in range: it keeps trying."""
+    while True:
+        try:
+            return _connect(server, key, max(interval_s, 30.0), errors)
+        except _CannotStart as exc:
+            if exc.code != 1:
+                raise
+            errors.print(f"… {exc}; trying again in {interval_s:g} s", highlight=False)
+            time.sleep(interval_s)
+
+
+def _report_measured(
+    transport: Transport, measuring: list[UploadOutcome], console: Console, errors: Console
+) -> list[UploadOutcome]:
+    """Print the measurements that completed since the last scan; returns the jobs still running."""
+    if not measuring:
+        return measuring
+    try:
+        finished, running = finished_jobs(transport, measuring)
+    except ServerUnreachable:
+        return measuring  # said as the outage began; asked again at the next scan
+    except RequestRefused as exc:
+        errors.print(f"[red]✗[/red] cannot follow the measurements: {exc}", highlight=False)
+        return []
+    for outcome in finished:
+        _say_measured(console, errors, outcome)
+    return running

@@ -30,6 +30,7 @@ __all__ = [
     "files_to_send",
     "find_captures",
     "fingerprint",
+    "finished_jobs",
     "receipt_complete",
     "wait_for_jobs",
 ]
@@ -245,27 +246,36 @@ class Uploader:
         raise AssertionError("unreachable")
 
 
+def finished_jobs(
+    transport: Transport, outcomes: list[UploadOutcome]
+) -> tuple[list[UploadOutcome], list[UploadOutcome]]:
+    """Ask once for each outcome's job: those finished (their ``result`` holding the job, and its
+    measurement when it succeeded) and those still waiting or running."""
+    finished, running = [], []
+    for outcome in outcomes:
+        job = transport.request("GET", f"/v1/jobs/{outcome.job_id}").json()
+        if job["state"] not in ("succeeded", "failed"):
+            running.append(outcome)
+            continue
+        outcome.result = {"job": job}
+        if job["state"] == "succeeded":
+            try:
+                measurement = transport.request("GET", f"/v1/measurements/{job['measurement_id']}")
+                outcome.result["measurement"] = measurement.json()
+            except RequestRefused as exc:
+                outcome.result["refused"] = str(exc)
+        finished.append(outcome)
+    return finished, running
+
+
 def wait_for_jobs(
     transport: Transport, outcomes: list[UploadOutcome], *, poll_s: float = 1.0
 ) -> Iterator[UploadOutcome]:
     """Yield each outcome with a job as its job finishes, its ``result`` holding the job (and measurement)."""
     pending = [outcome for outcome in outcomes if outcome.job_id is not None]
     while pending:
-        still = []
-        for outcome in pending:
-            job = transport.request("GET", f"/v1/jobs/{outcome.job_id}").json()
-            if job["state"] not in ("succeeded", "failed"):
-                still.append(outcome)
-                continue
-            outcome.result = {"job": job}
-            if job["state"] == "succeeded":
-                try:
-                    measurement = transport.request("GET", f"/v1/measurements/{job['measurement_id']}")
-                    outcome.result["measurement"] = measurement.json()
-                except RequestRefused as exc:
-                    outcome.result["refused"] = str(exc)
-            yield outcome
-        pending = still
+        finished, pending = finished_jobs(transport, pending)
+        yield from finished
         if pending:
             transport.sleep(poll_s)
 

@@ -1,11 +1,12 @@
-"""HTTP routes of API keys (admin scope): create, list, revoke."""
+"""HTTP routes of API keys: create, list, revoke (admin scope); the key in use (any key)."""
 
 from __future__ import annotations
 
 from fastapi import APIRouter
 
-from service.deps import AdminKey, ContextDep
-from service.keys.schemas import KeyCreate, KeyCreated, KeyOut
+from canopy_core import __version__
+from service.deps import AdminKey, AnyKey, ContextDep
+from service.keys.schemas import KeyCreate, KeyCreated, KeyCurrent, KeyOut
 from service.keys.service import create_key, list_keys, revoke_key
 from service.models import ApiKey
 from service.problems import NotFound, problem_responses
@@ -40,6 +41,12 @@ def index(context: ContextDep, _key: AdminKey) -> list[KeyOut]:
     """Every key, revoked ones included."""
     with context.database.reading() as session:
         return [key_out(record) for record in list_keys(session)]
+
+
+@router.get("/current", response_model=KeyCurrent)
+def current(key: AnyKey) -> KeyCurrent:
+    """The key this request was sent with (never the key itself) and the service's version."""
+    return KeyCurrent(version=__version__, key=key_out(key))
 
 
 @router.delete("/{prefix}", response_model=KeyOut, responses=problem_responses(NotFound))

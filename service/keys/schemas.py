@@ -7,7 +7,7 @@ from typing import Literal
 
 from pydantic import BaseModel, Field
 
-__all__ = ["KeyCreate", "KeyCreated", "KeyOut"]
+__all__ = ["KeyCreate", "KeyCreated", "KeyCurrent", "KeyOut"]
 
 Scope = Literal["capture", "read", "admin"]
 
@@ -34,3 +34,12 @@ class KeyCreated(KeyOut):
     """A key just created, with the key: store it now, it cannot be shown again."""
 
     key: str
+
+
+class KeyCurrent(BaseModel):
+    """The key a request was sent with, and the service that took it: what a client checks before it
+    starts (that the address is a Canopy service, and that its key may do what it is about to do)."""
+
+    service: Literal["canopy"] = "canopy"
+    version: str
+    key: KeyOut

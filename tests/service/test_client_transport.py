@@ -10,7 +10,7 @@ from collections.abc import Iterator
 
 import pytest
 
-from service.client.transport import RequestRefused, ServerUnreachable, Transport
+from service.client.transport import RequestRefused, ServerUnreachable, ServerUnusable, Transport
 
 
 class _Scripted(http.server.BaseHTTPRequestHandler):
@@ -63,7 +63,9 @@ class _SimulatedTime:
         return self.now
 
 
-def _transport(server: _ScriptedServer, waits: list[float], retry_for_s: float = 60.0) -> Transport:
+def _transport(
+    server: _ScriptedServer, waits: list[float], retry_for_s: float = 60.0, notices: list[str] | None = None
+) -> Transport:
     host, port = server.server_address[:2]
     simulated = _SimulatedTime()
     simulated.waits = waits
@@ -73,6 +75,7 @@ def _transport(server: _ScriptedServer, waits: list[float], retry_for_s: float =
         retry_for_s=retry_for_s,
         sleep=simulated.sleep,
         clock=simulated.clock,
+        notice=None if notices is None else notices.append,
     )
 
 
@@ -119,10 +122,38 @@ def test_nothing_listening_is_retried_until_given_up() -> None:
     transport = Transport(
         "http://127.0.0.1:9", "key", retry_for_s=5.0, sleep=simulated.sleep, clock=simulated.clock
     )
-    with pytest.raises(ServerUnreachable, match="ConnectError"):
+    with pytest.raises(ServerUnreachable, match="connection refused"):
         transport.request("GET", "/x")
     assert len(simulated.waits) >= 3
     assert sum(simulated.waits) <= 5.0
+
+
+def test_an_outage_is_said_once_as_it_begins_and_once_as_it_ends(scripted: _ScriptedServer) -> None:
+    scripted.script = [(503, {}), (502, {}), (503, {})]
+    notices: list[str] = []
+    transport = _transport(scripted, [], notices=notices)
+    transport.request("GET", "/x")
+    transport.request("GET", "/y")
+    server = transport.server
+    assert len(notices) == 2, notices
+    assert notices[0] == (
+        f"cannot reach {server}: HTTP 503 Service Unavailable; retrying for up to 60 s (Ctrl-C to stop)"
+    )
+    assert notices[1].startswith(f"reached {server} again after ")
+
+
+@pytest.mark.parametrize("address", ["127.0.0.1:8201", "localhost:8000", "ftp://host", "http://"])
+def test_an_address_without_http_or_https_is_refused_at_once(address: str) -> None:
+    with pytest.raises(ServerUnusable, match="not an http:// or https:// address"):
+        Transport(address, "key")
+
+
+def test_a_server_that_answers_but_not_as_canopy_is_unusable(scripted: _ScriptedServer) -> None:
+    with pytest.raises(ServerUnusable, match="not as a Canopy service"):
+        _transport(scripted, []).identify()
+    scripted.script = [(404, {})]
+    with pytest.raises(ServerUnusable, match="HTTP 404"):
+        _transport(scripted, []).identify()
 
 
 def test_client_imports_neither_open3d_nor_the_server_stack() -> None:
