@@ -164,11 +164,19 @@ def test_readyz_requires_a_key(anonymous: httpx.Client) -> None:
     assert_unauthorized(anonymous.get("/readyz"))
 
 
-def test_readyz_answers_with_a_read_key(shared_service: Service, read_key: str) -> None:
-    with shared_service.client(read_key) as client:
-        response = client.get("/readyz")
-    assert response.status_code == 200
-    assert response.json() == {"status": "ready"}
+@pytest.mark.parametrize("scope", ["read", "capture", "admin"])
+def test_readyz_and_the_current_key_answer_any_valid_key(shared_service: Service, scope: str) -> None:
+    key = shared_service.create_key(scope)
+    with shared_service.client(key) as client:
+        ready = client.get("/readyz")
+        current = client.get("/v1/keys/current")
+    assert ready.status_code == 200
+    assert ready.json() == {"status": "ready"}
+    assert current.status_code == 200
+    body = current.json()
+    assert body["service"] == "canopy" and body["version"]
+    assert body["key"]["scopes"] == [scope] and body["key"]["prefix"] == key.split("_")[1]
+    assert key not in current.text
 
 
 # --- scopes -----------------------------------------------------------------------------------------------
