@@ -24,9 +24,31 @@ app = typer.Typer(
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
+    rich_markup_mode=None,  # plain help: no "<bool>" after every flag, readable in any terminal
 )
 
-CaptureArg = Annotated[Path, typer.Argument(help="Capture folder (the one holding capture.json).")]
+
+def _print_version(asked: bool) -> None:
+    if asked:
+        from canopy_core import __version__
+
+        typer.echo(f"canopy {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _options(
+    version: Annotated[
+        bool,
+        typer.Option("--version", callback=_print_version, is_eager=True, help="Print the version and exit."),
+    ] = False,
+) -> None:
+    """Measure fruit-tree canopies (height, width, crown thickness) from multi-view RGB-D captures."""
+
+
+CaptureArg = Annotated[
+    Path, typer.Argument(metavar="CAPTURE", help="Capture folder (the one holding capture.json).")
+]
 JsonOpt = Annotated[bool, typer.Option("--json", help="Print one JSON object instead of a summary.")]
 
 
@@ -125,7 +147,7 @@ def balls(
 
 @app.command()
 def simulate(
-    out: Annotated[Path, typer.Argument(help="Folder to write the captures into.")],
+    out: Annotated[Path, typer.Argument(metavar="OUT", help="Folder to write the captures into.")],
     seed: Annotated[int, typer.Option(help="Random seed; the same seed writes the same captures.")] = 0,
     count: Annotated[int, typer.Option(min=1, help="Number of trees.")] = 1,
     views: Annotated[int, typer.Option(min=1, help="Views per tree.")] = 2,

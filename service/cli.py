@@ -33,7 +33,9 @@ DataOpt = Annotated[
     Path | None, typer.Option("--data", help="Data folder (database and blobs); default $CANOPY_DATA_DIR.")
 ]
 
-keys_app = typer.Typer(help="Create, list and revoke API keys (in the database the settings name).")
+keys_app = typer.Typer(
+    help="Create, list and revoke API keys (in the database the settings name).", rich_markup_mode=None
+)
 app.add_typer(keys_app, name="keys")
 
 
@@ -50,6 +52,26 @@ def _migrated_context(settings: Settings) -> Context:
     context = Context.from_settings(settings)
     upgrade(context.database)
     return context
+
+
+def _keys_context(data: Path | None, *, init: bool = False) -> Context:
+    """The migrated context of the database the key commands work on; unless ``init``, the embedded SQLite
+    database must exist already: a key made in a new database elsewhere would be refused by the server."""
+    settings = _settings(data)
+    database = settings.data_dir.resolve() / "canopy.db"
+    if settings.database_url is None and not init and not database.is_file():
+        where = (
+            "--data" if data is not None else "$CANOPY_DATA_DIR" if "CANOPY_DATA_DIR" in os.environ else None
+        )
+        source = f"from {where}" if where else f"the default ./canopy-data, from {Path.cwd()}"
+        typer.echo(
+            f"error: no Canopy database at {database} (the data folder {source}). Run this in the folder "
+            "`canopy up` runs in, pass --data with the service's data folder, or add --init to create a new, "
+            "empty database there",
+            err=True,
+        )
+        raise typer.Exit(2)
+    return _migrated_context(settings)
 
 
 def _serve(context: Context, host: str, port: int) -> None:
@@ -151,7 +173,9 @@ KeyOpt = Annotated[
         "--key", envvar="CANOPY_KEY", help="API key (capture scope; read too for --wait).", show_default=False
     ),
 ]
-RootArg = Annotated[Path, typer.Argument(help="A capture folder, or a folder holding capture folders.")]
+RootArg = Annotated[
+    Path, typer.Argument(metavar="ROOT", help="A capture folder, or a folder holding capture folders.")
+]
 
 
 @app.command()
@@ -196,11 +220,15 @@ def watch(
 def keys_create(
     scope: Annotated[list[str], typer.Option("--scope", help="capture, read or admin; repeat for several.")],
     name: Annotated[str, typer.Option(help="Who or what the key is for.")] = "unnamed",
+    data: DataOpt = None,
+    init: Annotated[
+        bool, typer.Option("--init", help="Create the database if the data folder has none yet.")
+    ] = False,
 ) -> None:
     """Create a key; it is printed alone on the last line, and never shown again."""
     from service.keys.service import create_key
 
-    context = _migrated_context(_settings())
+    context = _keys_context(data, init=init)
     try:
         with context.database.writing() as session:
             new = create_key(session, name=name, scopes=scope)
@@ -213,11 +241,11 @@ def keys_create(
 
 
 @keys_app.command("list")
-def keys_list() -> None:
+def keys_list(data: DataOpt = None) -> None:
     """Every key: prefix, scopes, name, created, revoked."""
     from service.keys.service import list_keys
 
-    context = _migrated_context(_settings())
+    context = _keys_context(data)
     with context.database.reading() as session:
         records = list_keys(session)
     typer.echo(f"{'prefix':<10}{'scopes':<22}{'created':<22}{'revoked':<22}name")
@@ -231,12 +259,13 @@ def keys_list() -> None:
 
 @keys_app.command("revoke")
 def keys_revoke(
-    prefix: Annotated[str, typer.Argument(help="The key's prefix, as `keys list` shows.")],
+    prefix: Annotated[str, typer.Argument(metavar="PREFIX", help="The key's prefix, as `keys list` shows.")],
+    data: DataOpt = None,
 ) -> None:
     """Revoke a key: it stops working at once."""
     from service.keys.service import revoke_key
 
-    context = _migrated_context(_settings())
+    context = _keys_context(data)
     with context.database.writing() as session:
         record = revoke_key(session, prefix=prefix)
     if record is None:

@@ -193,3 +193,21 @@ def test_cloud_into_a_missing_folder_fails_before_measuring(capture: Path, tmp_p
     done = _run("measure", str(capture), "--cloud", str(tmp_path / "no" / "such" / "tree.ply"))
     assert done.returncode == 2 and "does not exist" in done.stderr
     assert len(done.stderr.strip().splitlines()) == 1
+
+
+def test_version_prints_the_installed_version() -> None:
+    from importlib.metadata import version
+
+    done = _run("--version")
+    assert done.returncode == 0
+    assert done.stdout.strip() == f"canopy {version('canopy')}"
+
+
+@pytest.mark.parametrize(
+    ("command", "argument"), [("measure", "CAPTURE"), ("upload", "ROOT"), ("simulate", "OUT")]
+)
+def test_help_names_arguments_in_capitals_and_flags_without_a_type(command: str, argument: str) -> None:
+    done = _run(command, "--help")
+    assert done.returncode == 0
+    assert f"Usage: canopy {command} [OPTIONS] {{{argument}}}" in done.stdout
+    assert "<bool>" not in done.stdout

@@ -111,7 +111,7 @@ def start_service(root: Path, **settings: str) -> Service:
     }
     environment.pop("CANOPY_DATABASE_URL", None)
     keys = subprocess.run(
-        [CANOPY, "keys", "create", "--scope", "admin", "--name", "tests"],
+        [CANOPY, "keys", "create", "--scope", "admin", "--name", "tests", "--init"],
         env=environment,
         capture_output=True,
         text=True,

@@ -132,6 +132,55 @@ def test_revoked_key_stops_working_at_once(shared_service: Service) -> None:
     assert after.status_code == 401
 
 
+def test_keys_run_from_another_folder_refuse_to_make_a_new_database(
+    shared_service: Service, tmp_path: Path
+) -> None:
+    """Before, `canopy keys create` run elsewhere made ./canopy-data/canopy.db there, and printed a key the
+    server refused."""
+    environment = {k: v for k, v in shared_service.environment.items() if k != "CANOPY_DATA_DIR"}
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    refused = subprocess.run(
+        [CANOPY, "keys", "create", "--scope", "read"],
+        cwd=elsewhere,
+        env=environment,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+    assert refused.returncode == 2
+    assert f"no Canopy database at {elsewhere / 'canopy-data' / 'canopy.db'}" in refused.stderr
+    assert "--data" in refused.stderr and "--init" in refused.stderr
+    assert not (elsewhere / "canopy-data").exists()
+    with_data = subprocess.run(
+        [CANOPY, "keys", "create", "--scope", "read", "--data", str(shared_service.data_dir)],
+        cwd=elsewhere,
+        env=environment,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=True,
+    )
+    key = with_data.stdout.strip().splitlines()[-1]
+    with shared_service.client(key) as client:
+        assert client.get("/v1/orchards").status_code == 200
+
+
+def test_keys_init_creates_a_new_database_where_asked(tmp_path: Path) -> None:
+    environment = {k: v for k, v in os.environ.items() if not k.startswith("CANOPY_")}
+    made = subprocess.run(
+        [CANOPY, "keys", "create", "--scope", "admin", "--data", str(tmp_path / "new"), "--init"],
+        env=environment,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+    assert made.returncode == 0, made.stderr
+    assert (tmp_path / "new" / "canopy.db").is_file()
+
+
 def test_migrations_build_exactly_the_models_schema(tmp_path: Path) -> None:
     database = Database(f"sqlite:///{tmp_path / 'schema.db'}")
     assert not is_current(database)
