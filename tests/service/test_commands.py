@@ -132,51 +132,38 @@ def test_revoked_key_stops_working_at_once(shared_service: Service) -> None:
     assert after.status_code == 401
 
 
+def _keys_create(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
+    """`canopy keys create` run in ``cwd`` with no CANOPY_* setting: only its options and folder count."""
+    environment = {name: value for name, value in os.environ.items() if not name.startswith("CANOPY_")}
+    return subprocess.run(
+        [CANOPY, "keys", "create", *args],
+        cwd=cwd,
+        env=environment,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+
+
 def test_keys_run_from_another_folder_refuse_to_make_a_new_database(
     shared_service: Service, tmp_path: Path
 ) -> None:
     """Before, `canopy keys create` run elsewhere made ./canopy-data/canopy.db there, and printed a key the
     server refused."""
-    environment = {k: v for k, v in shared_service.environment.items() if k != "CANOPY_DATA_DIR"}
-    elsewhere = tmp_path / "elsewhere"
-    elsewhere.mkdir()
-    refused = subprocess.run(
-        [CANOPY, "keys", "create", "--scope", "read"],
-        cwd=elsewhere,
-        env=environment,
-        capture_output=True,
-        text=True,
-        timeout=120,
-        check=False,
-    )
+    refused = _keys_create("--scope", "read", cwd=tmp_path)
     assert refused.returncode == 2
-    assert f"no Canopy database at {elsewhere / 'canopy-data' / 'canopy.db'}" in refused.stderr
+    assert f"no Canopy database at {tmp_path / 'canopy-data' / 'canopy.db'}" in refused.stderr
     assert "--data" in refused.stderr and "--init" in refused.stderr
-    assert not (elsewhere / "canopy-data").exists()
-    with_data = subprocess.run(
-        [CANOPY, "keys", "create", "--scope", "read", "--data", str(shared_service.data_dir)],
-        cwd=elsewhere,
-        env=environment,
-        capture_output=True,
-        text=True,
-        timeout=120,
-        check=True,
-    )
+    assert not (tmp_path / "canopy-data").exists()
+    with_data = _keys_create("--scope", "read", "--data", str(shared_service.data_dir), cwd=tmp_path)
+    assert with_data.returncode == 0, with_data.stderr
     key = with_data.stdout.strip().splitlines()[-1]
     with shared_service.client(key) as client:
         assert client.get("/v1/orchards").status_code == 200
 
 
 def test_keys_init_creates_a_new_database_where_asked(tmp_path: Path) -> None:
-    environment = {k: v for k, v in os.environ.items() if not k.startswith("CANOPY_")}
-    made = subprocess.run(
-        [CANOPY, "keys", "create", "--scope", "admin", "--data", str(tmp_path / "new"), "--init"],
-        env=environment,
-        capture_output=True,
-        text=True,
-        timeout=120,
-        check=False,
-    )
+    made = _keys_create("--scope", "admin", "--data", str(tmp_path / "new"), "--init", cwd=tmp_path)
     assert made.returncode == 0, made.stderr
     assert (tmp_path / "new" / "canopy.db").is_file()
 
