@@ -91,6 +91,13 @@ _WIRE_STRETCH_M = 0.15
 """A chain of thin-line cells that runs straight and level over this length in plan, parallel to a wire
 found, is a stretch of another wire of the trellis seen beside the crown: longer than a leaf (5-10 cm),
 where the Hough transform may rank chance lines of leaves first."""
+_WIRE_MAX_TURN_DEG = 6.0
+"""The first wire's fit, from where the search found it (often one side of the crown, a metre or less),
+errs in direction and slope by up to this angle (4.3 degrees in a simulated capture); it is then turned,
+within this angle, to the line its points cover most of the chord along (:func:`_turned_to_cover`)."""
+_WIRE_VIEW_OFFSET_M = 0.1
+"""A view's line of a wire stands up to this far off the wire: its mixed pixels blend the wire's depth with
+the background's, by more against a near background (7 cm in a simulated capture)."""
 _WIRE_STRETCH_MAX_TURN_DEG = 10.0
 """Such a chain runs within this angle of the wire found: its own direction, over a few cells of
 ``tolerance_m``, errs by several degrees; the wire is then fitted along the found wire's direction."""
@@ -281,6 +288,13 @@ def find_wires(
             break
         wire, members = tried(pool, members, first)
         if wire is not None:
+            if first is None:
+                wire = _turned_to_cover(
+                    wire,
+                    [view[sparse] for view, (sparse, _) in zip(views, line_cells, strict=True)],
+                    roi_radius_m=roi_radius_m,
+                    tolerance_m=tolerance_m,
+                )
             wires.append(wire)
             thin_pool = thin_pool[~wire_mask(thin_pool, [wire], tolerance_m=tolerance_m, spread_m=spread_m)]
             sparse_pool = sparse_pool[
@@ -496,11 +510,13 @@ def _best_line(pool_m: np.ndarray, *, tolerance_m: float, roi_radius_m: float) -
     return np.linalg.norm(offset - np.outer(offset @ direction, direction), axis=1) < tolerance_m
 
 
-def _best_parallel_line(pool_m: np.ndarray, parallel_to: Wire, *, tolerance_m: float) -> np.ndarray | None:
+def _best_parallel_line(
+    pool_m: np.ndarray, parallel_to: Wire, *, tolerance_m: float, shortest_m: float = _WIRE_OPEN_SPAN_M
+) -> np.ndarray | None:
     """Mask over ``pool_m`` of the points of the best line parallel to ``parallel_to`` (in plan and in
     slope): a Hough transform over the lines' offset across it and height, in steps of ``tolerance_m``,
     each scored by the length it covers (stretches of :data:`_WIRE_BIN_M` holding a point); None when no
-    line covers :data:`_WIRE_OPEN_SPAN_M`."""
+    line covers ``shortest_m``."""
     if pool_m.shape[0] == 0:
         return None
     across, rise = parallel_to.offsets_m(pool_m)
@@ -512,7 +528,7 @@ def _best_parallel_line(pool_m: np.ndarray, parallel_to: Wire, *, tolerance_m: f
     stretch -= stretch.min()
     covered = np.unique(line_key * (int(stretch.max()) + 1) + stretch) // (int(stretch.max()) + 1)
     keys, score = np.unique(covered, return_counts=True)
-    if score.max() * _WIRE_BIN_M < _WIRE_OPEN_SPAN_M:
+    if score.max() * _WIRE_BIN_M < shortest_m:
         return None
     chosen = line_key == keys[np.argmax(score)]
     centre = np.array([np.mean(across[chosen]), np.mean(rise[chosen])])
@@ -589,6 +605,63 @@ def _fit_wire(
         )
     assert wire is not None
     return wire, wire.distance_m(pool_m) < tolerance_m
+
+
+def _turned_to_cover(
+    wire: Wire, views_m: Sequence[np.ndarray], *, roi_radius_m: float, tolerance_m: float
+) -> Wire:
+    """``wire`` turned about its origin, in plan and in slope by at most :data:`_WIRE_MAX_TURN_DEG` each, to
+    the direction along which each view sees a line that covers the most of the wire's chord through the
+    cylinder of ``roi_radius_m``, then fitted again along that direction (:func:`_fit_wire`) to the
+    points of those lines; of directions covering as much, the least turned.
+
+    ``views_m`` holds each view's points that may be a wire's (sparse cells). A view sees a wire as a line
+    that stands off it by that view's mixed pixels, up to :data:`_WIRE_VIEW_OFFSET_M`: two views' lines of
+    one wire, centimetres apart, are two lines, and a line fitted through one view's on one side of the
+    crown and the other's on the other side is turned by degrees. So each view's best line parallel to a
+    direction is sought on its own (:func:`_best_parallel_line`, scored by the stretches of
+    :data:`_WIRE_BIN_M` it covers) and the views' cover is summed. The trellis's other wires are then sought
+    parallel to the turned wire; a degree off, they are 2.5 cm off the search's lines at the cylinder's
+    wall.
+    """
+    step = tolerance_m / roi_radius_m / 2
+    turns = np.arange(-np.radians(_WIRE_MAX_TURN_DEG), np.radians(_WIRE_MAX_TURN_DEG) + step / 2, step)
+    turns = turns[np.argsort(np.abs(turns), kind="stable")]
+    base = float(np.arctan2(wire.direction_xy[1], wire.direction_xy[0]))
+    near = [points[wire.distance_m(points) < 2 * _WIRE_VIEW_OFFSET_M] for points in views_m]
+    best: tuple[int, Wire | None, list[np.ndarray]] = (0, None, [])
+    for turn in turns:
+        direction = np.array([np.cos(base + turn), np.sin(base + turn)])
+        chord = _chord(wire.origin_xy_m, direction, roi_radius_m)
+        if chord is None:
+            continue
+        for tilt in turns:
+            slope = float(np.tan(np.arctan(wire.slope) + tilt))
+            turned = Wire(wire.origin_xy_m, direction, wire.height_m, slope)
+            covered, lines = 0, []
+            for points in near:
+                across, rise = turned.offsets_m(points)
+                close = np.hypot(across, rise) < _WIRE_VIEW_OFFSET_M
+                line = _best_parallel_line(points[close], turned, tolerance_m=tolerance_m, shortest_m=0.0)
+                if line is None:
+                    continue
+                along = (points[close][line, :2] - wire.origin_xy_m) @ direction
+                covered += int(np.count_nonzero(_stretches_holding(along, *chord)))
+                lines.append(points[close][line])
+            if covered > best[0]:
+                best = (covered, turned, lines)
+    _, turned, lines = best
+    if turned is None:
+        return wire
+    seen = np.concatenate(lines)
+    refitted, _ = _fit_wire(
+        seen,
+        np.ones(seen.shape[0], dtype=bool),
+        roi_radius_m=roi_radius_m,
+        tolerance_m=_WIRE_VIEW_OFFSET_M,
+        direction_xy=turned.direction_xy,
+    )
+    return refitted or turned
 
 
 def _crosses_as_wire(
