@@ -650,8 +650,8 @@ def _turned_to_cover(
                 lines.append(points[close][line])
             if covered > best[0]:
                 best = (covered, turned, lines)
-    _, turned, lines = best
-    if turned is None:
+    _, along_views, lines = best
+    if along_views is None:
         return wire
     seen = np.concatenate(lines)
     refitted, _ = _fit_wire(
@@ -659,9 +659,9 @@ def _turned_to_cover(
         np.ones(seen.shape[0], dtype=bool),
         roi_radius_m=roi_radius_m,
         tolerance_m=_WIRE_VIEW_OFFSET_M,
-        direction_xy=turned.direction_xy,
+        direction_xy=along_views.direction_xy,
     )
-    return refitted or turned
+    return refitted or along_views
 
 
 def _crosses_as_wire(
