@@ -40,6 +40,7 @@ from canopy_core.refine import IcpRefinement, check_icp_agreement, refine_views
 from canopy_core.register import apply, register_by_balls
 from canopy_core.segment import find_wires, tree_component, wire_mask
 from canopy_core.spheres import SphereFit
+from canopy_core.visibility import seen_through
 
 __all__ = [
     "STAGES",
@@ -277,7 +278,7 @@ def measure(
         trunk_xy,
         config,
     )
-    modes = _modes(capture, roi_points, roi_colors, tree_masks, trunk_xy, config)
+    modes = _modes(capture, roi_points, roi_colors, tree_masks, world_from_view, trunk_xy, config)
 
     diagnostics = tuple(
         ViewDiagnostics(
@@ -349,13 +350,15 @@ def _modes(
     roi_points: list[np.ndarray],
     roi_colors: list[np.ndarray],
     tree_masks: list[np.ndarray],
+    world_from_view: list[np.ndarray],
     trunk_xy: np.ndarray,
     config: MeasureConfig,
 ) -> dict[str, CanopyMetrics]:
     """The metrics of each view's tree points alone, and of all views merged (the paper's V1, V2, V1+V2).
 
-    The crown is told from ground vegetation, suckers and fallen fruit once, on all views together, where
-    the gaps between them are seen best.
+    The crown is told from ground vegetation, suckers, fallen fruit and mixed pixels once, on all views
+    together, where the gaps between them are seen best and each view's phantoms are seen through by the
+    others (``world_from_view``: each view's depth-camera pose in the world frame).
     """
     points = [view_points[mask] for view_points, mask in zip(roi_points, tree_masks, strict=True)]
     foliage = [
@@ -370,6 +373,18 @@ def _modes(
             merged, trunk_xy, foliage=merged_foliage, min_radius_m=config.metrics.crown_base_min_radius_m
         ),
         config=config.metrics,
+        seen_through=np.concatenate(
+            [
+                seen_through(
+                    view_points,
+                    own_view=i,
+                    views=capture.views,
+                    world_from_view=world_from_view,
+                    margin_m=config.metrics.crown_piece_seen_through_m,
+                )
+                for i, view_points in enumerate(points)
+            ]
+        ),
     )
     crowns = np.split(crown, np.cumsum([view_points.shape[0] for view_points in points])[:-1])
     modes: dict[str, CanopyMetrics] = {}

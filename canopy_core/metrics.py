@@ -49,6 +49,9 @@ to a few centimetres; coarse enough that grouping a tree's tens of thousands of 
 _CROWN_SHARE_ABOVE = 0.5
 """A body is part of the crown when at least this share of its height lies above the crown's main body's
 lowest point: a piece of the crown does; a weed, sucker or fallen apple reaching up to it does not."""
+_PHANTOM_SHARE = 0.5
+"""A body apart from the crown's main body is a phantom when more than this share of its points were seen
+through by another view: a real piece, where another view looks at it, is seen there or hidden."""
 
 
 @dataclass(frozen=True)
@@ -190,7 +193,12 @@ def crown_candidates(
 
 
 def crown_mask(
-    points_m: np.ndarray, trunk_xy_m: np.ndarray, *, candidates: np.ndarray, config: MetricsConfig
+    points_m: np.ndarray,
+    trunk_xy_m: np.ndarray,
+    *,
+    candidates: np.ndarray,
+    config: MetricsConfig,
+    seen_through: np.ndarray | None = None,
 ) -> np.ndarray:
     """Mask of the crown's points among the ``candidates`` (see :func:`crown_candidates`).
 
@@ -204,7 +212,9 @@ def crown_mask(
     below ``config.crown_piece_min_bottom_m`` (it rises from the ground: a trellis post, a stake, a tall
     weed beside the trunk; no crown hangs there), nor a body that is a level straight line longer
     than a leaf (a piece of trellis wire beside the crown that the wire search missed; see
-    :func:`canopy_core.segment.is_wire_piece`). Candidates inside the column (within
+    :func:`canopy_core.segment.is_wire_piece`), nor a body apart from the rest most of whose points
+    another view saw through (``seen_through``, see :func:`canopy_core.visibility.seen_through`: mixed
+    pixels behind a wire, which only the view that made them shows). Candidates inside the column (within
     ``config.trunk_column_radius_m`` of the trunk's axis: suckers, leaves next to the trunk, bark coloured
     by the leaves behind it) join the crown when they are within the link distance of it, but never link
     anything to it: not what grows at the trunk's foot, not each other up the trunk. With no candidate
@@ -220,6 +230,8 @@ def crown_mask(
         Boolean mask over ``points_m`` of the points that may be crown.
     config
         The link distance, the trunk's column and what makes a wire piece.
+    seen_through
+        Boolean mask over ``points_m`` of the points another view saw past; None when unknown (one view).
 
     Returns
     -------
@@ -254,6 +266,11 @@ def crown_mask(
     at_crown_height &= ~pieces | (
         (voxels >= config.crown_piece_min_voxels) & (bottom >= config.crown_piece_min_bottom_m)
     )
+    if seen_through is not None:
+        through_share = np.bincount(
+            labels, weights=seen_through[grouped], minlength=voxels.size
+        ) / np.bincount(labels, minlength=voxels.size)
+        at_crown_height &= ~pieces | (through_share <= _PHANTOM_SHARE)
     for body in np.flatnonzero(at_crown_height):
         if body != main and is_wire_piece(
             points_m[grouped[order[starts[body] : ends[body]]]],
