@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import difflib
 import json
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path, PurePosixPath
@@ -333,9 +333,15 @@ def color_file_names(view: str) -> tuple[str, ...]:
     return tuple(f"{view}/{name}" for name in COLOR_NAMES)
 
 
-def expected_files(manifest: CaptureManifest) -> list[str]:
-    """Files a complete capture holds besides capture.json; colour is listed by its PNG name."""
-    return [f"{view}/{name}" for view in manifest.views for name in ("camera.json", "depth.png", "color.png")]
+def expected_files(manifest: CaptureManifest, received: Collection[str] = ()) -> list[str]:
+    """Files a complete capture holds besides capture.json. A view's colour is named as it was
+    ``received`` (PNG or JPEG), and by its PNG name while neither has come."""
+    expected = []
+    for view in manifest.views:
+        colors = color_file_names(view)
+        color = next((name for name in colors if name in received), colors[0])
+        expected += [f"{view}/camera.json", f"{view}/depth.png", color]
+    return expected
 
 
 FileReader = Callable[[str], bytes | None]

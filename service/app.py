@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
-from fastapi import FastAPI
+from fastapi import Depends, FastAPI
 
 from canopy_core import __version__
 from service import health
 from service.captures import endpoints as captures
 from service.context import Context
+from service.conventions import ConditionalGet, reject_unknown_query
 from service.farm import endpoints as farm
 from service.jobs import endpoints as jobs
 from service.keys import endpoints as keys
@@ -20,6 +21,7 @@ __all__ = ["create_app"]
 def create_app(context: Context | None = None) -> FastAPI:
     """The API over ``context`` (default: built from the ``CANOPY_*`` environment)."""
     app = FastAPI(
+        dependencies=[Depends(reject_unknown_query)],
         title="Canopy",
         version=__version__,
         summary="Measures fruit-tree canopies (height, width, crown thickness) from RGB-D captures.",
@@ -27,6 +29,7 @@ def create_app(context: Context | None = None) -> FastAPI:
     )
     app.state.context = context or Context.from_settings(Settings())
     install_problem_handlers(app)
+    app.add_middleware(ConditionalGet)
     for module in (health, captures, jobs, farm, keys):
         app.include_router(module.router)
     return app

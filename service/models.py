@@ -10,6 +10,7 @@ from __future__ import annotations
 from datetime import UTC, datetime
 from typing import Any, ClassVar
 
+from pydantic import TypeAdapter
 from sqlalchemy import JSON, DateTime, Float, ForeignKey, Index, Integer, MetaData, String, UniqueConstraint
 from sqlalchemy.engine import Dialect
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship
@@ -27,6 +28,7 @@ __all__ = [
     "Row",
     "Tree",
     "utc_now",
+    "utc_text",
 ]
 
 JOB_STATES = ("queued", "running", "succeeded", "failed")
@@ -46,6 +48,14 @@ _GROWING_IDS = {"sqlite_autoincrement": True}
 def utc_now() -> datetime:
     """The current time, timezone-aware in UTC."""
     return datetime.now(UTC)
+
+
+_TIMES = TypeAdapter(datetime)
+
+
+def utc_text(moment: datetime) -> str:
+    """``moment`` as RFC 3339 in UTC ending in ``Z``: how every answer of the API writes a time."""
+    return str(_TIMES.dump_python(moment.astimezone(UTC), mode="json"))
 
 
 class UtcDateTime(TypeDecorator[datetime]):

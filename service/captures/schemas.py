@@ -20,7 +20,8 @@ class CaptureOut(BaseModel):
     captured_at: datetime
     views: list[str]
     files_expected: list[str] = Field(
-        description="Every file the capture needs; a view's colour may be color.png or color.jpg."
+        description="Every file the capture needs besides capture.json; a view's colour by the name it came "
+        "under (color.png or color.jpg), as color.png until one came."
     )
     files_received: list[str]
     files_sha256: dict[str, str] = Field(

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from collections.abc import Collection
 
 from sqlalchemy import delete, select
 from sqlalchemy.orm import Session
@@ -10,7 +11,6 @@ from sqlalchemy.orm import Session
 from canopy_core.capture import (
     CaptureManifest,
     capture_time,
-    color_file_names,
     expected_files,
     parse_manifest,
     stored_manifest,
@@ -118,16 +118,9 @@ def _received(session: Session, capture_id: int) -> dict[str, str]:
     return {path: sha256 for path, sha256 in rows}
 
 
-def missing_files(manifest: CaptureManifest, received: list[str]) -> list[str]:
+def missing_files(manifest: CaptureManifest, received: Collection[str]) -> list[str]:
     """Files the capture still needs; a view's colour is missing only when neither PNG nor JPEG came."""
-    have = set(received)
-    missing = []
-    for view in manifest.views:
-        missing += [f"{view}/{name}" for name in ("camera.json", "depth.png") if f"{view}/{name}" not in have]
-        colors = color_file_names(view)
-        if not have.intersection(colors):
-            missing.append(colors[0])
-    return missing
+    return [path for path in expected_files(manifest, received) if path not in received]
 
 
 def capture_out(session: Session, capture: Capture) -> CaptureOut:
@@ -143,9 +136,9 @@ def capture_out(session: Session, capture: Capture) -> CaptureOut:
         tree_id=tree.id,
         captured_at=capture.captured_at,
         views=manifest.views,
-        files_expected=expected_files(manifest),
+        files_expected=expected_files(manifest, received),
         files_received=list(received),
         files_sha256=received,
-        files_missing=missing_files(manifest, list(received)),
+        files_missing=missing_files(manifest, received),
         created_at=capture.created_at,
     )

@@ -9,16 +9,21 @@ from fastapi import APIRouter, Query
 from fastapi.responses import FileResponse, StreamingResponse
 from pydantic import AwareDatetime
 
+from service.conventions import strong_etag
 from service.deps import ContextDep, ReadKey
 from service.farm.schemas import MeasurementSummary, OrchardOut, RowOut, TreeOut
 from service.farm.service import (
     get_measurement,
+    get_orchard,
+    get_row,
+    get_tree,
     list_orchards,
     list_rows,
     list_tree_measurements,
     list_trees,
     measurement_document,
     measurements_csv,
+    measurements_csv_etag,
 )
 from service.pagination import CursorQuery, LimitQuery, Page
 from service.problems import ApiError, BadRequest, NotFound, problem_responses
@@ -29,31 +34,69 @@ router = APIRouter(prefix="/v1", tags=["farm"])
 _LISTS = problem_responses(BadRequest, NotFound)
 
 
+NameQuery = Annotated[str | None, Query(description="Only the one of this exact name")]
+
+
 @router.get("/orchards", response_model=Page[OrchardOut], responses=_LISTS)
 def orchards(
-    context: ContextDep, _key: ReadKey, cursor: CursorQuery = None, limit: LimitQuery = 100
+    context: ContextDep,
+    _key: ReadKey,
+    name: NameQuery = None,
+    cursor: CursorQuery = None,
+    limit: LimitQuery = 100,
 ) -> Page[OrchardOut]:
-    """Every orchard."""
+    """Every orchard, in the order first seen."""
     with context.database.reading() as session:
-        return list_orchards(session, cursor=cursor, limit=limit)
+        return list_orchards(session, name=name, cursor=cursor, limit=limit)
+
+
+@router.get("/orchards/{orchard_id}", response_model=OrchardOut, responses=problem_responses(NotFound))
+def orchard(orchard_id: int, context: ContextDep, _key: ReadKey) -> OrchardOut:
+    """An orchard."""
+    with context.database.reading() as session:
+        return get_orchard(session, orchard_id)
 
 
 @router.get("/orchards/{orchard_id}/rows", response_model=Page[RowOut], responses=_LISTS)
 def rows(
-    orchard_id: int, context: ContextDep, _key: ReadKey, cursor: CursorQuery = None, limit: LimitQuery = 100
+    orchard_id: int,
+    context: ContextDep,
+    _key: ReadKey,
+    name: NameQuery = None,
+    cursor: CursorQuery = None,
+    limit: LimitQuery = 100,
 ) -> Page[RowOut]:
     """The rows of an orchard."""
     with context.database.reading() as session:
-        return list_rows(session, orchard_id, cursor=cursor, limit=limit)
+        return list_rows(session, orchard_id, name=name, cursor=cursor, limit=limit)
+
+
+@router.get("/rows/{row_id}", response_model=RowOut, responses=problem_responses(NotFound))
+def row(row_id: int, context: ContextDep, _key: ReadKey) -> RowOut:
+    """A row."""
+    with context.database.reading() as session:
+        return get_row(session, row_id)
 
 
 @router.get("/rows/{row_id}/trees", response_model=Page[TreeOut], responses=_LISTS)
 def trees(
-    row_id: int, context: ContextDep, _key: ReadKey, cursor: CursorQuery = None, limit: LimitQuery = 100
+    row_id: int,
+    context: ContextDep,
+    _key: ReadKey,
+    name: NameQuery = None,
+    cursor: CursorQuery = None,
+    limit: LimitQuery = 100,
 ) -> Page[TreeOut]:
     """The trees of a row, each with its latest measurement."""
     with context.database.reading() as session:
-        return list_trees(session, row_id, cursor=cursor, limit=limit)
+        return list_trees(session, row_id, name=name, cursor=cursor, limit=limit)
+
+
+@router.get("/trees/{tree_id}", response_model=TreeOut, responses=problem_responses(NotFound))
+def tree(tree_id: int, context: ContextDep, _key: ReadKey) -> TreeOut:
+    """A tree with its latest measurement."""
+    with context.database.reading() as session:
+        return get_tree(session, tree_id)
 
 
 @router.get("/trees/{tree_id}/measurements", response_model=Page[MeasurementSummary], responses=_LISTS)
@@ -81,6 +124,9 @@ def measurements_export(
 ) -> StreamingResponse:
     """Measurements as CSV (metres), for a row, an orchard or everything."""
 
+    with context.database.reading() as session:
+        etag = measurements_csv_etag(session, orchard=orchard, row=row, since=since)
+
     def lines() -> Iterator[str]:
         with context.database.reading() as session:
             yield from measurements_csv(session, orchard=orchard, row=row, since=since)
@@ -88,7 +134,11 @@ def measurements_export(
     return StreamingResponse(
         lines(),
         media_type="text/csv; charset=utf-8",
-        headers={"Content-Disposition": 'attachment; filename="measurements.csv"'},
+        headers={
+            "Content-Disposition": 'attachment; filename="measurements.csv"',
+            "ETag": etag,
+            "Cache-Control": "no-cache",
+        },
     )
 
 
@@ -118,4 +168,5 @@ def cloud(measurement_id: int, context: ContextDep, _key: ReadKey) -> FileRespon
         path,
         media_type="application/octet-stream",
         filename=f"measurement-{measurement_id}.ply",
+        headers={"ETag": strong_etag(record.cloud_sha256)},
     )

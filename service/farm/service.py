@@ -3,30 +3,36 @@
 from __future__ import annotations
 
 import csv
+import hashlib
 import io
 from collections.abc import Iterator
 from dataclasses import fields
 from datetime import datetime
-from typing import Any
+from typing import Any, TypeVar
 
 from sqlalchemy import Select, func, select
 from sqlalchemy.orm import Session
 
 from canopy_core.metrics import CanopyMetrics
+from service.conventions import strong_etag
 from service.farm.schemas import MeasurementSummary, OrchardOut, RowOut, TreeOut
-from service.models import Capture, Measurement, Orchard, Row, Tree
+from service.models import Capture, Measurement, Orchard, Row, Tree, utc_text
 from service.pagination import Page, keyset, page_of
 from service.problems import NotFound
 
 __all__ = [
     "CSV_COLUMNS",
     "get_measurement",
+    "get_orchard",
+    "get_row",
+    "get_tree",
     "list_orchards",
     "list_rows",
     "list_tree_measurements",
     "list_trees",
     "measurement_document",
     "measurements_csv",
+    "measurements_csv_etag",
 ]
 
 CSV_COLUMNS = (
@@ -42,24 +48,53 @@ CSV_COLUMNS = (
 """One line per measurement: who, when, then every merged-view metric (metres, m², m³)."""
 
 
-def _exists(session: Session, model: type[Orchard] | type[Row] | type[Tree], key: int, what: str) -> None:
-    if session.get(model, key) is None:
-        raise NotFound(f"no {what} with id {key}")
+Record = TypeVar("Record", Orchard, Row, Tree)
 
 
-def list_orchards(session: Session, *, cursor: str | None, limit: int) -> Page[OrchardOut]:
-    """Orchards in the order they were first seen."""
-    rows = list(session.scalars(keyset(select(Orchard), Orchard.id, cursor, limit)))
+def _one(session: Session, model: type[Record], key: int) -> Record:
+    """The orchard, row or tree with id ``key``, or a 404 problem naming it."""
+    record = session.get(model, key)
+    if record is None:
+        what = model.__name__.lower()
+        members: dict[str, Any] = {f"{what}_id": key}
+        raise NotFound(f"no {what} with id {key}", **members)
+    return record
+
+
+def get_orchard(session: Session, orchard_id: int) -> OrchardOut:
+    """The orchard with this id, or a 404 problem."""
+    return OrchardOut.model_validate(_one(session, Orchard, orchard_id), from_attributes=True)
+
+
+def get_row(session: Session, row_id: int) -> RowOut:
+    """The row with this id, or a 404 problem."""
+    return RowOut.model_validate(_one(session, Row, row_id), from_attributes=True)
+
+
+def get_tree(session: Session, tree_id: int) -> TreeOut:
+    """The tree with this id and its latest measurement, or a 404 problem."""
+    return _trees_out(session, [_one(session, Tree, tree_id)])[0]
+
+
+def list_orchards(session: Session, *, name: str | None, cursor: str | None, limit: int) -> Page[OrchardOut]:
+    """Orchards in the order they were first seen; only the one called ``name`` if given."""
+    query = select(Orchard)
+    if name is not None:
+        query = query.where(Orchard.name == name)
+    rows = list(session.scalars(keyset(query, Orchard.id, cursor, limit)))
     items = [OrchardOut.model_validate(row, from_attributes=True) for row in rows]
     return page_of(items, [row.id for row in rows], limit)
 
 
-def list_rows(session: Session, orchard_id: int, *, cursor: str | None, limit: int) -> Page[RowOut]:
-    """The rows of an orchard."""
-    _exists(session, Orchard, orchard_id, "orchard")
-    rows = list(
-        session.scalars(keyset(select(Row).where(Row.orchard_id == orchard_id), Row.id, cursor, limit))
-    )
+def list_rows(
+    session: Session, orchard_id: int, *, name: str | None, cursor: str | None, limit: int
+) -> Page[RowOut]:
+    """The rows of an orchard; only the one called ``name`` if given."""
+    _one(session, Orchard, orchard_id)
+    query = select(Row).where(Row.orchard_id == orchard_id)
+    if name is not None:
+        query = query.where(Row.name == name)
+    rows = list(session.scalars(keyset(query, Row.id, cursor, limit)))
     items = [RowOut.model_validate(row, from_attributes=True) for row in rows]
     return page_of(items, [row.id for row in rows], limit)
 
@@ -83,10 +118,20 @@ def _summary(measurement: Measurement, captured_at: datetime) -> MeasurementSumm
     )
 
 
-def list_trees(session: Session, row_id: int, *, cursor: str | None, limit: int) -> Page[TreeOut]:
-    """The trees of a row, each with its latest measurement."""
-    _exists(session, Row, row_id, "row")
-    trees = list(session.scalars(keyset(select(Tree).where(Tree.row_id == row_id), Tree.id, cursor, limit)))
+def list_trees(
+    session: Session, row_id: int, *, name: str | None, cursor: str | None, limit: int
+) -> Page[TreeOut]:
+    """The trees of a row, each with its latest measurement; only the one called ``name`` if given."""
+    _one(session, Row, row_id)
+    query = select(Tree).where(Tree.row_id == row_id)
+    if name is not None:
+        query = query.where(Tree.name == name)
+    trees = list(session.scalars(keyset(query, Tree.id, cursor, limit)))
+    return page_of(_trees_out(session, trees), [tree.id for tree in trees], limit)
+
+
+def _trees_out(session: Session, trees: list[Tree]) -> list[TreeOut]:
+    """The trees as the API shows them, each with its most recent measurement by capture time."""
     latest: dict[int, MeasurementSummary] = {}
     if trees:
         newest = (
@@ -106,7 +151,7 @@ def list_trees(session: Session, row_id: int, *, cursor: str | None, limit: int)
         )
         for measurement, captured_at in session.execute(query_latest):
             latest[measurement.tree_id] = _summary(measurement, captured_at)  # the newest job wins
-    items = [
+    return [
         TreeOut(
             id=tree.id,
             row_id=tree.row_id,
@@ -116,14 +161,13 @@ def list_trees(session: Session, row_id: int, *, cursor: str | None, limit: int)
         )
         for tree in trees
     ]
-    return page_of(items, [tree.id for tree in trees], limit)
 
 
 def list_tree_measurements(
     session: Session, tree_id: int, *, cursor: str | None, limit: int
 ) -> Page[MeasurementSummary]:
     """A tree's measurements, newest first (by measurement id): its growth history."""
-    _exists(session, Tree, tree_id, "tree")
+    _one(session, Tree, tree_id)
     query = _summaries().where(Measurement.tree_id == tree_id)
     rows = session.execute(keyset(query, Measurement.id, cursor, limit, newest_first=True)).all()
     items = [_summary(measurement, captured_at) for measurement, captured_at in rows]
@@ -146,8 +190,8 @@ def measurement_document(session: Session, measurement: Measurement) -> dict[str
         "job_id": measurement.job_id,
         "capture_id": measurement.capture_id,
         "tree_id": measurement.tree_id,
-        "captured_at": captured_at.isoformat() if captured_at else None,
-        "created_at": measurement.created_at.isoformat(),
+        "captured_at": utc_text(captured_at) if captured_at else None,
+        "created_at": utc_text(measurement.created_at),
         "cloud": {
             "href": f"/v1/measurements/{measurement.id}/cloud.ply",
             "points": measurement.cloud_points,
@@ -157,17 +201,16 @@ def measurement_document(session: Session, measurement: Measurement) -> dict[str
     }
 
 
-def measurements_csv(
-    session: Session, *, orchard: str | None, row: str | None, since: datetime | None
-) -> Iterator[str]:
-    """CSV text, header first, of every measurement matching the filters, by orchard, row, tree, time."""
+def _csv_rows(
+    orchard: str | None, row: str | None, since: datetime | None
+) -> Select[Measurement, datetime, str, str, str]:
+    """The measurements the CSV export holds with these filters, with who and when, unordered."""
     query = (
         select(Measurement, Capture.captured_at, Orchard.name, Row.name, Tree.name)
         .join(Capture, Capture.id == Measurement.capture_id)
         .join(Tree, Tree.id == Measurement.tree_id)
         .join(Row, Row.id == Tree.row_id)
         .join(Orchard, Orchard.id == Row.orchard_id)
-        .order_by(Orchard.name, Row.name, Tree.name, Capture.captured_at, Measurement.id)
     )
     if orchard is not None:
         query = query.where(Orchard.name == orchard)
@@ -175,6 +218,29 @@ def measurements_csv(
         query = query.where(Row.name == row)
     if since is not None:
         query = query.where(Capture.captured_at >= since)
+    return query
+
+
+def measurements_csv_etag(
+    session: Session, *, orchard: str | None, row: str | None, since: datetime | None
+) -> str:
+    """The ETag of the CSV export with these filters, known before a line of it is written.
+
+    A measurement never changes once stored and ids are never reused, so the set of lines is told by its
+    count and its highest id: a new measurement raises the highest, a deleted one lowers the count.
+    """
+    counted = _csv_rows(orchard, row, since).with_only_columns(func.count(), func.max(Measurement.id))
+    count, highest = session.execute(counted).one()
+    return strong_etag(hashlib.sha256(f"{','.join(CSV_COLUMNS)}|{count}|{highest}".encode()).hexdigest())
+
+
+def measurements_csv(
+    session: Session, *, orchard: str | None, row: str | None, since: datetime | None
+) -> Iterator[str]:
+    """CSV text, header first, of every measurement matching the filters, by orchard, row, tree, time."""
+    query = _csv_rows(orchard, row, since).order_by(
+        Orchard.name, Row.name, Tree.name, Capture.captured_at, Measurement.id
+    )
     buffer = io.StringIO()
     writer = csv.writer(buffer, lineterminator="\n")
     writer.writerow(CSV_COLUMNS)
@@ -185,7 +251,7 @@ def measurements_csv(
             "orchard": orchard_name,
             "row": row_name,
             "tree": tree_name,
-            "captured_at": captured_at.isoformat(),
+            "captured_at": utc_text(captured_at),
             "capture_id": measurement.capture_id,
             "job_id": measurement.job_id,
         }

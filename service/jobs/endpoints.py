@@ -2,15 +2,15 @@
 
 from __future__ import annotations
 
-import hashlib
 from typing import Annotated
 
-from fastapi import APIRouter, Header, Query, Request, Response
+from fastapi import APIRouter, Header, Query, Response
+from pydantic import AwareDatetime
 from sqlalchemy.orm import Session
 
 from service.captures.service import get_capture
 from service.deps import CaptureKey, CaptureOrReadKey, ContextDep, ReadKey
-from service.jobs.schemas import JobOut, JobRequest, JobState
+from service.jobs.schemas import JobOrder, JobOut, JobRequest, JobState
 from service.jobs.service import create_job, get_job, job_out, list_jobs
 from service.pagination import CursorQuery, LimitQuery, Page
 from service.problems import BadRequest, Conflict, InvalidContent, NotFound, problem_responses
@@ -57,32 +57,30 @@ def start(
     response_model=JobOut,
     responses=problem_responses(NotFound, also={304: {"description": "Unchanged since the ETag sent"}}),
 )
-def read(
-    job_id: int,
-    http_request: Request,
-    context: ContextDep,
-    _key: CaptureOrReadKey,
-) -> Response:
+def read(job_id: int, context: ContextDep, _key: CaptureOrReadKey) -> JobOut:
     """A job's state, stage and progress; send If-None-Match with the last ETag to get 304 while unchanged."""
     with context.database.reading() as session:
-        out = job_out(session, get_job(session, job_id))
-    body = out.model_dump_json().encode()
-    etag = f'"{hashlib.sha256(body).hexdigest()[:32]}"'
-    headers = {"ETag": etag, "Cache-Control": "no-cache"}
-    if etag in {tag.strip() for tag in http_request.headers.get("if-none-match", "").split(",")}:
-        return Response(status_code=304, headers=headers)
-    return Response(body, media_type="application/json", headers=headers)
+        return job_out(session, get_job(session, job_id))
 
 
 @router.get("/v1/jobs", response_model=Page[JobOut], responses=problem_responses(BadRequest))
 def index(
     context: ContextDep,
     _key: ReadKey,
-    state: Annotated[JobState | None, Query(description="Only jobs in this state")] = None,
+    state: Annotated[
+        list[JobState] | None,
+        Query(description="Only jobs in these states (repeat: state=queued&state=running)"),
+    ] = None,
     capture_id: Annotated[int | None, Query(description="Only jobs of this capture")] = None,
+    since: Annotated[
+        AwareDatetime | None, Query(description="Only jobs created at or after (RFC 3339)")
+    ] = None,
+    order: Annotated[JobOrder, Query(description="newest or oldest first")] = "newest",
     cursor: CursorQuery = None,
     limit: LimitQuery = 100,
 ) -> Page[JobOut]:
-    """Jobs, oldest first."""
+    """Jobs, newest first by default, each with its orchard, row and tree."""
     with context.database.reading() as session:
-        return list_jobs(session, state=state, capture_id=capture_id, cursor=cursor, limit=limit)
+        return list_jobs(
+            session, states=state, capture_id=capture_id, since=since, order=order, cursor=cursor, limit=limit
+        )

@@ -7,9 +7,10 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-__all__ = ["JobError", "JobOut", "JobRequest", "JobState"]
+__all__ = ["JobError", "JobOrder", "JobOut", "JobRequest", "JobState"]
 
 JobState = Literal["queued", "running", "succeeded", "failed"]
+JobOrder = Literal["newest", "oldest"]
 
 
 class JobRequest(BaseModel):
@@ -42,6 +43,10 @@ class JobOut(BaseModel):
 
     id: int
     capture_id: int
+    orchard: str
+    row: str
+    tree: str
+    tree_id: int
     state: JobState
     stage: str | None = Field(description="Pipeline stage while running: load, filter, balls, ...")
     progress: float = Field(ge=0.0, le=1.0)

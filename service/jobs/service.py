@@ -2,16 +2,18 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from datetime import datetime
 from typing import Any
 
-from sqlalchemy import select
+from sqlalchemy import Select, select
 from sqlalchemy.orm import Session
 
 from canopy_core.errors import ConfigError
 from canopy_core.measure import config_for
 from service.captures.service import capture_manifest, missing_files
 from service.jobs.schemas import JobError, JobOut
-from service.models import Capture, CaptureFile, Job, Measurement
+from service.models import Capture, CaptureFile, Job, Measurement, Orchard, Row, Tree
 from service.pagination import Page, keyset, page_of
 from service.problems import Conflict, NotFound
 
@@ -68,16 +70,31 @@ def get_job(session: Session, job_id: int) -> Job:
     return job
 
 
+def _jobs() -> Select[Job, int | None, str, str, str, int]:
+    """Jobs with their measurement's id (if any), orchard, row and tree names, and tree id."""
+    return (
+        select(Job, Measurement.id, Orchard.name, Row.name, Tree.name, Tree.id)
+        .join(Capture, Capture.id == Job.capture_id)
+        .join(Tree, Tree.id == Capture.tree_id)
+        .join(Row, Row.id == Tree.row_id)
+        .join(Orchard, Orchard.id == Row.orchard_id)
+        .outerjoin(Measurement, Measurement.job_id == Job.id)
+    )
+
+
 def job_out(session: Session, job: Job) -> JobOut:
     """The job as the API shows it."""
-    measurement_id = session.scalar(select(Measurement.id).where(Measurement.job_id == job.id))
-    return _out(job, measurement_id)
+    return _out(*session.execute(_jobs().where(Job.id == job.id)).one())
 
 
-def _out(job: Job, measurement_id: int | None) -> JobOut:
+def _out(job: Job, measurement_id: int | None, orchard: str, row: str, tree: str, tree_id: int) -> JobOut:
     return JobOut(
         id=job.id,
         capture_id=job.capture_id,
+        orchard=orchard,
+        row=row,
+        tree=tree,
+        tree_id=tree_id,
         state=job.state,
         stage=job.stage,
         progress=job.progress,
@@ -91,15 +108,22 @@ def _out(job: Job, measurement_id: int | None) -> JobOut:
 
 
 def list_jobs(
-    session: Session, *, state: str | None, capture_id: int | None, cursor: str | None, limit: int
+    session: Session,
+    *,
+    states: Sequence[str] | None,
+    capture_id: int | None,
+    since: datetime | None,
+    order: str,
+    cursor: str | None,
+    limit: int,
 ) -> Page[JobOut]:
-    """Jobs oldest first, optionally of one state or capture."""
-    query = select(Job, Measurement.id).outerjoin(Measurement, Measurement.job_id == Job.id)
-    if state is not None:
-        query = query.where(Job.state == state)
+    """Jobs ``newest`` or ``oldest`` first, optionally in some states, of one capture, or created since."""
+    query = _jobs()
+    if states:
+        query = query.where(Job.state.in_(states))
     if capture_id is not None:
         query = query.where(Job.capture_id == capture_id)
-    rows = session.execute(keyset(query, Job.id, cursor, limit)).all()
-    return page_of(
-        [_out(job, measurement_id) for job, measurement_id in rows], [job.id for job, _ in rows], limit
-    )
+    if since is not None:
+        query = query.where(Job.created_at >= since)
+    rows = session.execute(keyset(query, Job.id, cursor, limit, newest_first=order == "newest")).all()
+    return page_of([_out(*row) for row in rows], [row[0].id for row in rows], limit)

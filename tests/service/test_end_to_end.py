@@ -6,6 +6,7 @@ from __future__ import annotations
 import csv
 import io
 import json
+import re
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -143,3 +144,76 @@ def test_job_status_answers_304_while_unchanged(service: Service, measured: dict
     assert again.content == b""
     assert stale.status_code == 200
     assert stale.headers["etag"] == first.headers["etag"]
+
+
+def test_every_get_with_a_body_answers_304_to_its_etag(service: Service, measured: dict[str, object]) -> None:
+    """Lists, one tree, the measurement, the CSV and the fused cloud: a dashboard or a nightly sync that
+    sends the ETag it holds gets 304 and no body while nothing changed."""
+    measurement = measured["measurement"]
+    assert isinstance(measurement, dict)
+    paths = [
+        "/v1/orchards",
+        "/v1/jobs",
+        f"/v1/trees/{measurement['tree_id']}",
+        f"/v1/trees/{measurement['tree_id']}/measurements",
+        f"/v1/measurements/{measurement['id']}",
+        "/v1/measurements.csv",
+        measurement["cloud"]["href"],
+    ]
+    with service.client() as client:
+        for path in paths:
+            first = client.get(path)
+            assert first.status_code == 200, path
+            etag = first.headers["etag"]
+            again = client.get(path, headers={"If-None-Match": etag})
+            assert (again.status_code, again.content, again.headers["etag"]) == (304, b"", etag), path
+            assert client.get(path, headers={"If-None-Match": '"other"'}).status_code == 200, path
+
+
+def test_the_cloud_s_etag_is_its_sha256(service: Service, measured: dict[str, object]) -> None:
+    measurement = measured["measurement"]
+    assert isinstance(measurement, dict)
+    with service.client() as client:
+        cloud = client.get(measurement["cloud"]["href"])
+    assert cloud.headers["etag"] == f'"{measurement["cloud"]["sha256"][:32]}"'
+
+
+def test_every_time_is_rfc_3339_utc_ending_in_z(service: Service, measured: dict[str, object]) -> None:
+    """A measurement, a job, a capture, a tree and the CSV write times the same way."""
+    measurement = measured["measurement"]
+    job = measured["job"]
+    assert isinstance(measurement, dict) and isinstance(job, dict)
+    with service.client() as client:
+        documents = [
+            client.get(f"/v1/measurements/{measurement['id']}").json(),
+            client.get(f"/v1/jobs/{job['id']}").json(),
+            client.get(f"/v1/captures/{measured['capture_id']}").json(),
+            client.get(f"/v1/trees/{measurement['tree_id']}").json(),
+        ]
+        [line] = list(csv.DictReader(io.StringIO(client.get("/v1/measurements.csv").text)))
+    times = [line["captured_at"]]
+    for document in documents:
+        times += [value for key, value in _walk(document) if key.endswith("_at") and value is not None]
+    assert len(times) >= 10
+    for moment in times:
+        assert re.fullmatch(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d(\.\d+)?Z", moment), moment
+
+
+def _walk(document: object) -> Iterator[tuple[str, object]]:
+    """Every (key, value) pair of a JSON document, nested ones included."""
+    if isinstance(document, dict):
+        for key, value in document.items():
+            yield key, value
+            yield from _walk(value)
+    elif isinstance(document, list):
+        for value in document:
+            yield from _walk(value)
+
+
+def test_a_capture_names_the_colour_files_it_was_sent(service: Service, measured: dict[str, object]) -> None:
+    """The simulated capture's colour is JPEG: files_expected says color.jpg, as files_received does."""
+    with service.client() as client:
+        capture = client.get(f"/v1/captures/{measured['capture_id']}").json()
+    assert sorted(capture["files_expected"]) == capture["files_received"]
+    assert "views/1/color.jpg" in capture["files_expected"]
+    assert capture["files_missing"] == []

@@ -1,0 +1,136 @@
+"""The API's conventions, as an integrator or a dashboard relies on them: one orchard, row or tree by id,
+filters by name, unknown query parameters refused, jobs newest first with several states and names, lists
+that answer 304 while unchanged."""
+
+from __future__ import annotations
+
+import json
+import uuid
+from pathlib import Path
+
+import httpx
+
+from tests.service.running import Service, upload_capture
+
+
+def _manifest(orchard: str, row: str, tree: str) -> str:
+    return json.dumps(
+        {
+            "format": "canopy-capture/1",
+            "orchard": orchard,
+            "row": row,
+            "tree": tree,
+            "captured_at": "2026-11-20T08:31:00Z",
+            "views": ["views/1", "views/2"],
+        }
+    )
+
+
+def _tree_id(client: httpx.Client, orchard: str, row: str, tree: str) -> int:
+    created = client.post("/v1/captures", content=_manifest(orchard, row, tree))
+    assert created.status_code == 201, created.text
+    return int(created.json()["tree_id"])
+
+
+def test_one_orchard_row_and_tree_are_read_by_id(shared_service: Service) -> None:
+    orchard = f"One {uuid.uuid4().hex[:8]}"
+    with shared_service.client() as client:
+        tree_id = _tree_id(client, orchard, "R7", "T3")
+        tree = client.get(f"/v1/trees/{tree_id}").json()
+        row = client.get(f"/v1/rows/{tree['row_id']}").json()
+        one = client.get(f"/v1/orchards/{row['orchard_id']}").json()
+        missing = [client.get(f"/v1/{kind}/999999") for kind in ("orchards", "rows", "trees")]
+    assert (one["name"], row["name"], tree["name"]) == (orchard, "R7", "T3")
+    assert tree["latest_measurement"] is None
+    assert [answer.status_code for answer in missing] == [404, 404, 404]
+    assert [answer.json()["detail"] for answer in missing] == [
+        "no orchard with id 999999",
+        "no row with id 999999",
+        "no tree with id 999999",
+    ]
+
+
+def test_lists_filter_by_exact_name(shared_service: Service) -> None:
+    orchard = f"Names {uuid.uuid4().hex[:8]}"
+    with shared_service.client() as client:
+        for row, tree in (("R1", "T1"), ("R1", "T2"), ("R2", "T1")):
+            _tree_id(client, orchard, row, tree)
+        [found] = client.get("/v1/orchards", params={"name": orchard}).json()["items"]
+        rows = client.get(f"/v1/orchards/{found['id']}/rows", params={"name": "R1"}).json()["items"]
+        trees = client.get(f"/v1/rows/{rows[0]['id']}/trees", params={"name": "T2"}).json()["items"]
+        nothing = client.get("/v1/orchards", params={"name": orchard.lower()}).json()["items"]
+    assert found["name"] == orchard
+    assert [row["name"] for row in rows] == ["R1"]
+    assert [tree["name"] for tree in trees] == ["T2"]
+    assert nothing == []
+
+
+def test_an_unknown_query_parameter_is_refused_naming_it(shared_service: Service) -> None:
+    """A misspelt filter silently ignored would answer the whole list as if it were the filtered one."""
+    with shared_service.client() as client:
+        orchards = client.get("/v1/orchards", params={"sort": "name"})
+        jobs = client.get("/v1/jobs", params={"stat": "failed", "state": "queued"})
+    assert orchards.status_code == 400
+    assert orchards.headers["content-type"].startswith("application/problem+json")
+    assert orchards.json()["code"] == "unknown_parameter"
+    assert orchards.json()["unknown"] == ["sort"]
+    assert "cursor, limit, name" in orchards.json()["detail"]
+    assert jobs.status_code == 400
+    assert jobs.json()["field"] == "stat"
+
+
+def test_jobs_come_newest_first_in_several_states_with_their_tree(
+    shared_service: Service, tree_capture: Path
+) -> None:
+    """No worker runs beside this service: every job stays queued."""
+    with shared_service.client() as client:
+        capture_id = upload_capture(client, tree_capture)
+        jobs_url = f"/v1/captures/{capture_id}/jobs"
+        started = [
+            client.post(jobs_url, headers={"Idempotency-Key": uuid.uuid4().hex}).json() for _ in range(3)
+        ]
+        ids = [job["id"] for job in started]
+        since = started[1]["created_at"]
+
+        def listed(**params: object) -> list[int]:
+            answer = client.get("/v1/jobs", params={"capture_id": capture_id} | params)
+            assert answer.status_code == 200, answer.text
+            return [job["id"] for job in answer.json()["items"]]
+
+        newest = listed()
+        oldest = listed(order="oldest")
+        waiting = listed(state=["running", "queued"])
+        done = listed(state=["succeeded", "failed"])
+        recent = listed(since=since, order="oldest")
+        paged = client.get("/v1/jobs", params={"capture_id": capture_id, "limit": 2}).json()
+        rest = listed(cursor=paged["next_cursor"])
+        [job] = client.get("/v1/jobs", params={"capture_id": capture_id, "limit": 1}).json()["items"]
+        capture = client.get(f"/v1/captures/{capture_id}").json()
+    assert newest == ids[::-1]
+    assert oldest == ids
+    assert waiting == ids[::-1]
+    assert done == []
+    assert recent == ids[1:]
+    assert [item["id"] for item in paged["items"]] + rest == ids[::-1]
+    assert (job["orchard"], job["row"], job["tree"], job["tree_id"]) == (
+        capture["orchard"],
+        capture["row"],
+        capture["tree"],
+        capture["tree_id"],
+    )
+
+
+def test_a_list_s_etag_changes_when_the_list_does(shared_service: Service) -> None:
+    """A dashboard polling with If-None-Match gets 304 until a tree is added, then the new list."""
+    orchard = f"Poll {uuid.uuid4().hex[:8]}"
+    with shared_service.client() as client:
+        tree_id = _tree_id(client, orchard, "R1", "T1")
+        row_id = client.get(f"/v1/trees/{tree_id}").json()["row_id"]
+        first = client.get(f"/v1/rows/{row_id}/trees")
+        unchanged = client.get(f"/v1/rows/{row_id}/trees", headers={"If-None-Match": first.headers["etag"]})
+        _tree_id(client, orchard, "R1", "T2")
+        changed = client.get(f"/v1/rows/{row_id}/trees", headers={"If-None-Match": first.headers["etag"]})
+    assert unchanged.status_code == 304
+    assert changed.status_code == 200
+    assert changed.headers["etag"] != first.headers["etag"]
+    assert [tree["name"] for tree in changed.json()["items"]] == ["T1", "T2"]
