@@ -127,15 +127,22 @@ def _canopy_error(_request: Request, exc: Exception) -> JSONResponse:
 
 def _validation_error(_request: Request, exc: Exception) -> JSONResponse:
     assert isinstance(exc, RequestValidationError)
-    errors = exc.errors()
-    first = errors[0]
-    location = [str(part) for part in first["loc"]]
-    where = location[0] if location else "body"
-    field = ".".join(location[1:]) or where
-    detail = f"{field}: {first['msg']}"
-    if len(errors) > 1:
-        detail += f" ({len(errors) - 1} more problem(s))"
-    return problem(422, "Invalid request", detail, code="invalid_request", field=field, where=where)
+    problems = []
+    for error in exc.errors():
+        location = [str(part) for part in error["loc"]]
+        where = location[0] if location else "body"
+        problems.append({"field": ".".join(location[1:]) or where, "where": where, "message": error["msg"]})
+    detail = "; ".join(f"{item['field']}: {item['message']}" for item in problems)
+    first = problems[0]
+    return problem(
+        422,
+        "Invalid request",
+        detail,
+        code="invalid_request",
+        field=first["field"],
+        where=first["where"],
+        errors=problems,
+    )
 
 
 def _http_error(_request: Request, exc: Exception) -> JSONResponse:

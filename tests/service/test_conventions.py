@@ -5,6 +5,7 @@ that answer 304 while unchanged."""
 from __future__ import annotations
 
 import json
+import re
 import uuid
 from pathlib import Path
 
@@ -134,3 +135,29 @@ def test_a_list_s_etag_changes_when_the_list_does(shared_service: Service) -> No
     assert changed.status_code == 200
     assert changed.headers["etag"] != first.headers["etag"]
     assert [tree["name"] for tree in changed.json()["items"]] == ["T1", "T2"]
+
+
+def test_the_api_docs_load_nothing_from_the_internet(shared_service: Service) -> None:
+    """Swagger UI and ReDoc in an offline field office: every script and style sheet they name is served
+    by the service itself."""
+    with shared_service.client() as client:
+        pages = {path: client.get(path) for path in ("/docs", "/redoc")}
+        assets: set[str] = set()
+        for path, page in pages.items():
+            assert page.status_code == 200, path
+            named = re.findall(r'(?:src|href)="([^"]+\.(?:js|css|png))"', page.text)
+            assert named, path
+            assert not [url for url in named if "://" in url or url.startswith("//")], (path, named)
+            assets.update(named)
+        answers = {asset: client.get(asset).status_code for asset in assets}
+    assert answers == dict.fromkeys(assets, 200)
+
+
+def test_every_invalid_parameter_of_a_request_is_named(shared_service: Service) -> None:
+    with shared_service.client() as client:
+        answer = client.get("/v1/jobs", params={"limit": 0, "capture_id": "seven", "order": "latest"})
+    assert answer.status_code == 422
+    problem = answer.json()
+    assert sorted(item["field"] for item in problem["errors"]) == ["capture_id", "limit", "order"]
+    for field in ("capture_id", "limit", "order"):
+        assert f"{field}: " in problem["detail"]
