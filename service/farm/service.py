@@ -183,14 +183,17 @@ def get_measurement(session: Session, measurement_id: int) -> Measurement:
 
 
 def measurement_document(session: Session, measurement: Measurement) -> dict[str, Any]:
-    """The whole measurement: the core's result document, with ids and the cloud's address added."""
-    captured_at = session.scalar(select(Capture.captured_at).where(Capture.id == measurement.capture_id))
+    """The whole measurement: the core's result document, with ids and the cloud's address added, and the
+    capture's time written as every time the API answers (UTC, ``Z``), whatever zone capture.json gave."""
+    captured_at = session.scalars(
+        select(Capture.captured_at).where(Capture.id == measurement.capture_id)
+    ).one()
     return {
         "id": measurement.id,
         "job_id": measurement.job_id,
         "capture_id": measurement.capture_id,
         "tree_id": measurement.tree_id,
-        "captured_at": utc_text(captured_at) if captured_at else None,
+        "captured_at": utc_text(captured_at),
         "created_at": utc_text(measurement.created_at),
         "cloud": {
             "href": f"/v1/measurements/{measurement.id}/cloud.ply",
@@ -198,6 +201,7 @@ def measurement_document(session: Session, measurement: Measurement) -> dict[str
             "sha256": measurement.cloud_sha256,
         },
         **measurement.result,
+        "capture": {**measurement.result["capture"], "captured_at": utc_text(captured_at)},
     }
 
 

@@ -7,7 +7,9 @@ import csv
 import io
 import json
 import re
+import shutil
 from collections.abc import Iterator
+from datetime import datetime, timedelta, timezone
 from pathlib import Path
 
 import numpy as np
@@ -30,11 +32,19 @@ def service(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Service]:
 
 
 @pytest.fixture(scope="module")
-def measured(service: Service, tree_capture: Path) -> dict[str, object]:
-    """The capture uploaded, its job run by a worker to success: the job and the measurement."""
+def measured(
+    service: Service, tree_capture: Path, tmp_path_factory: pytest.TempPathFactory
+) -> dict[str, object]:
+    """The capture uploaded, its job run by a worker to success: the job and the measurement. Its
+    capture.json gives the time in the orchard's local time (+02:00), as capture software may."""
+    local = Path(shutil.copytree(tree_capture, tmp_path_factory.mktemp("local-time") / "capture"))
+    manifest = json.loads((local / "capture.json").read_text())
+    moment = datetime.fromisoformat(manifest["captured_at"]).astimezone(timezone(timedelta(hours=2)))
+    manifest["captured_at"] = moment.isoformat()
+    (local / "capture.json").write_text(json.dumps(manifest))
     service.start_worker()
     with service.client() as client:
-        capture_id = upload_capture(client, tree_capture)
+        capture_id = upload_capture(client, local)
         started = client.post(f"/v1/captures/{capture_id}/jobs")
         assert started.status_code == 202, started.text
         assert started.headers["location"] == f"/v1/jobs/{started.json()['id']}"
