@@ -21,11 +21,13 @@ import numpy as np
 from canopy_core.balls import BallCandidate, Objection, ViewBallCandidates
 from canopy_core.config import BallConfig
 from canopy_core.errors import BallNotFound, RegistrationFailed
-from canopy_core.ground import CAMERA_UP, GroundPlane
+from canopy_core.ground import CAMERA_UP, GroundFrame, GroundPlane
 
 __all__ = [
     "BallChoice",
     "Rejection",
+    "ball_off_ground",
+    "balls_off_ground",
     "balls_off_trunk",
     "check_ball_spacing",
     "choose_in_view",
@@ -127,6 +129,39 @@ def balls_off_trunk(
         field="balls.max_trunk_distance_m",
         hint=f"check with `canopy balls --preview` what was taken for the {far} ball; lay the balls "
         "0.3-0.8 m from the trunk, in open view, and capture again",
+    )
+
+
+def ball_off_ground(frame: GroundFrame, colors: Sequence[str], radius_m: float) -> str | None:
+    """The colour of the ball that lies off the ground round the balls, or None when they rest on it.
+
+    The balls rest on the ground, so their centres' plane is the ground's, one radius up. When the ground
+    found round them tilts from that plane by more than a slope between the balls allows
+    (:attr:`GroundFrame.on_ground`), a sphere taken for a ball is not resting there: a fallen apple or a
+    fragment of one, whose centre stands lower than a ball's, tilts a plane through balls a few decimetres
+    apart by tens of degrees. The ball named is the one whose height above the ground found is farthest
+    from a ball's (``radius_m``).
+    """
+    if frame.on_ground:
+        return None
+    off = np.abs(np.array(frame.ball_heights_m) - radius_m)
+    return colors[int(np.argmax(off))]
+
+
+def balls_off_ground(
+    frame: GroundFrame, colors: Sequence[str], radius_m: float, off: str
+) -> RegistrationFailed:
+    """The failure of balls that do not rest on the ground round them, ``off`` (see
+    :func:`ball_off_ground`) the one farthest from it."""
+    height = frame.ball_heights_m[list(colors).index(off)]
+    return RegistrationFailed(
+        f"the balls do not rest on the ground round them (their plane tilts "
+        f"{frame.tilt_from_ball_plane_deg:.0f} degrees from it): the {off} ball's centre stands "
+        f"{height:.2f} m above it, where a ball's stands {radius_m:.2f} m. Something else of its colour (a "
+        "fallen apple?) was probably taken for it, and no other sphere of its colour rests on the ground "
+        "round the trunk",
+        hint=f"check with `canopy balls --preview` what was taken for the {off} ball; lay the balls on open "
+        "ground, apart from fallen fruit, and capture again",
     )
 
 

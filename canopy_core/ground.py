@@ -64,6 +64,15 @@ class GroundFrame:
     ground_points: int
     ground_rms_m: float
     tilt_from_ball_plane_deg: float
+    """How far the ground plane found round the balls tilts from the plane of the balls' centres (0 when no
+    ground plane was found there)."""
+    on_ground: bool
+    """Whether the balls rest on the ground found: its plane tilts less than ``_MAX_GROUND_TILT_DEG`` from
+    theirs, and the frame stands on it. Else the frame is the balls' plane, which a sphere taken for a ball
+    but lying off the ground tilts (see ``ball_heights_m``); True when no ground plane was found."""
+    ball_heights_m: tuple[float, ...]
+    """Each ball centre's height above the ground plane found round the balls, used or not (the balls'
+    radius each when none was found): a ball's stands one radius high."""
     trunk_xy_m: tuple[float, float]
     trunk_points: int
     ground_height_at_trunk_m: float
@@ -203,12 +212,15 @@ def fit_ground_frame(
     )
     up = ball_up
     ground = candidates
+    tilt_deg, heights = 0.0, np.full(ball_centres_m.shape[0], ball_radius_m)
     if candidates.size >= 50:
         inliers = candidates[_ransac_ground(points_m[candidates], config.inlier_tolerance_m)]
         if inliers.size >= 50:
             plane_point, normal = _plane_fit(points_m[inliers])
             normal = normal if normal @ ball_up > 0 else -normal
-            if np.degrees(np.arccos(np.clip(normal @ ball_up, -1, 1))) < _MAX_GROUND_TILT_DEG:
+            tilt_deg = float(np.degrees(np.arccos(np.clip(normal @ ball_up, -1, 1))))
+            heights = (ball_centres_m - plane_point) @ normal
+            if tilt_deg < _MAX_GROUND_TILT_DEG:
                 up, ground = normal, inliers
                 contact = centroid - ((centroid - plane_point) @ up) * up
     rotation = _world_rotation(up, forward_hint)
@@ -223,7 +235,9 @@ def fit_ground_frame(
         world_from_reference=world_from_reference,
         ground_points=int(ground.size),
         ground_rms_m=float(np.sqrt(np.mean(residual**2))),
-        tilt_from_ball_plane_deg=float(np.degrees(np.arccos(np.clip(up @ ball_up, -1.0, 1.0)))),
+        tilt_from_ball_plane_deg=tilt_deg,
+        on_ground=tilt_deg < _MAX_GROUND_TILT_DEG,
+        ball_heights_m=tuple(float(height) for height in heights),
         trunk_xy_m=(float(trunk_xy[0]), float(trunk_xy[1])),
         trunk_points=trunk_points,
         ground_height_at_trunk_m=float(ground_height),

@@ -19,7 +19,14 @@ import numpy as np
 from pydantic import ValidationError
 
 from canopy_core.backproject import ViewCloud, backproject
-from canopy_core.ball_selection import BallChoice, balls_off_trunk, far_ball, select_balls
+from canopy_core.ball_selection import (
+    BallChoice,
+    ball_off_ground,
+    balls_off_ground,
+    balls_off_trunk,
+    far_ball,
+    select_balls,
+)
 from canopy_core.balls import ViewBallCandidates, find_ball_candidates
 from canopy_core.capture import Capture, CaptureManifest, View, load_capture
 from canopy_core.config import FilterConfig, MeasureConfig
@@ -136,6 +143,8 @@ class Measurement:
                     "points": ground.ground_points,
                     "rms_m": ground.ground_rms_m,
                     "tilt_from_ball_plane_deg": ground.tilt_from_ball_plane_deg,
+                    "balls_on_ground": ground.on_ground,
+                    "ball_heights_m": dict(zip(self.config.balls.colors, ground.ball_heights_m, strict=True)),
                     "trunk_xy_m": list(ground.trunk_xy_m),
                     "trunk_points": ground.trunk_points,
                     "ground_height_at_trunk_m": ground.ground_height_at_trunk_m,
@@ -406,26 +415,26 @@ def balls_and_frame(
 ) -> tuple[list[BallChoice], list[np.ndarray], GroundFrame]:
     """The balls chosen in each view, each view's pose in the reference view's frame, and the world frame.
 
-    The crew lays the balls 0.3-0.8 m from the trunk. When a ball comes out farther from it than
-    ``balls.max_trunk_distance_m``, the sphere taken for it is a look-alike every view saw (an apple lying
-    on the ground agrees with itself across views): the balls are chosen again without it, so the ball is
-    sought where the others place it.
+    The crew lays the balls on the ground, 0.3-0.8 m from the trunk. When a ball comes out farther from it
+    than ``balls.max_trunk_distance_m``, or off the ground round the balls (their plane tilted from the
+    ground's by more than a slope allows), the sphere taken for it is a look-alike every view saw (an apple
+    lying on the ground agrees with itself across views; a fallen apple's centre lies lower than a ball's):
+    the balls are chosen again without it, so the ball is sought where the others place it.
 
     Raises
     ------
     BallNotFound, RegistrationFailed
         As :func:`select_balls`; RegistrationFailed naming the ball when no other choice lies round the
-        trunk.
+        trunk and on the ground.
     """
     choices = select_balls(candidates, config.balls, grounds=grounds)
     view_to_reference, ground, balls_world = _registered(choices, clouds, config)
-    far = far_ball(
-        balls_world, np.array(ground.trunk_xy_m), config.balls.colors, config.balls.max_trunk_distance_m
-    )
-    if far is None:
+    misplaced = _misplaced_ball(balls_world, ground, config)
+    if misplaced is None:
         return choices, view_to_reference, ground
+    color, failure = misplaced
     without = [
-        replace(view, candidates=tuple(c for c in view.candidates if c is not choice.chosen[far]))
+        replace(view, candidates=tuple(c for c in view.candidates if c is not choice.chosen[color]))
         for view, choice in zip(candidates, choices, strict=True)
     ]
     try:
@@ -434,10 +443,25 @@ def balls_and_frame(
         again = None
     if again is not None:
         poses, frame, centres_world = _registered(again, clouds, config)
-        trunk_xy = np.array(frame.trunk_xy_m)
-        if far_ball(centres_world, trunk_xy, config.balls.colors, config.balls.max_trunk_distance_m) is None:
+        if _misplaced_ball(centres_world, frame, config) is None:
             return again, poses, frame
-    raise balls_off_trunk(balls_world, np.array(ground.trunk_xy_m), config.balls.colors, far)
+    raise failure
+
+
+def _misplaced_ball(
+    balls_world: np.ndarray, ground: GroundFrame, config: MeasureConfig
+) -> tuple[str, RegistrationFailed] | None:
+    """The colour of a ball that cannot be one, far from the trunk or off the ground, with the failure to
+    raise if no other choice does better; None when the balls lie where balls lie."""
+    trunk_xy = np.array(ground.trunk_xy_m)
+    colors = config.balls.colors
+    far = far_ball(balls_world, trunk_xy, colors, config.balls.max_trunk_distance_m)
+    if far is not None:
+        return far, balls_off_trunk(balls_world, trunk_xy, colors, far)
+    sunk = ball_off_ground(ground, colors, config.balls.radius_m)
+    if sunk is not None:
+        return sunk, balls_off_ground(ground, colors, config.balls.radius_m, sunk)
+    return None
 
 
 def _registered(

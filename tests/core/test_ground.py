@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from canopy_core.ball_selection import ball_off_ground
 from canopy_core.config import GroundConfig
 from canopy_core.ground import GroundFrame, fit_ground_frame
 from canopy_core.register import apply, invert
@@ -91,3 +92,23 @@ def test_the_trunk_is_found_on_its_bark_among_tall_grass_and_weeds() -> None:
     frame, recovered_from_world = _fitted_frame(scene, balls_world)
     trunk_foot = apply(recovered_from_world, np.array([[trunk_xy[0], trunk_xy[1], 0.0]]))[0]
     assert np.linalg.norm(np.array(frame.trunk_xy_m) - trunk_foot[:2]) < 0.01
+
+
+def test_balls_resting_on_the_ground_stand_one_radius_above_the_ground_found() -> None:
+    points_world, balls_world, _ = _scene(np.random.default_rng(0))
+    frame, _ = _fitted_frame(points_world, balls_world)
+    assert frame.on_ground
+    assert np.allclose(frame.ball_heights_m, 0.05, atol=0.03)  # bumps of ~3 cm under a fitted plane
+    assert ball_off_ground(frame, ("red", "yellow", "blue"), 0.05) is None
+
+
+def test_a_sphere_lying_lower_than_a_ball_tilts_the_balls_plane_and_is_named() -> None:
+    """A fallen apple's fragment 12 cm from the yellow ball, its fitted centre at ground level, taken for
+    the blue ball: the plane through the three centres tilts by tens of degrees from the ground round them."""
+    points_world, balls_world, _ = _scene(np.random.default_rng(0))
+    apple = balls_world[1] + np.array([0.12 * np.cos(0.4), 0.12 * np.sin(0.4), -0.05])
+    frame, _ = _fitted_frame(points_world, np.vstack([balls_world[:2], apple]))
+    assert not frame.on_ground
+    assert frame.tilt_from_ball_plane_deg > 15.0
+    assert ball_off_ground(frame, ("red", "yellow", "blue"), 0.05) == "blue"
+    assert abs(frame.ball_heights_m[2]) < 0.02
