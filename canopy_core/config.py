@@ -301,6 +301,14 @@ class IcpConfig(_Section):
         "the registration fails: the balls' fits err by millimetres, a fragment's by a few centimetres; "
         "beyond, a look-alike (a sphere fitted on the trunk, an apple) was taken for a ball.",
     )
+    max_disagreement_deg: float = Field(
+        6.0,
+        gt=0.0,
+        description="When the views' surfaces line up only with a view turned more than this, the "
+        "registration fails: twice the turn a fragment's registration leaves open "
+        "(max_rotation_found_by_position_deg). Balls nearly in a line hold a view's turn about that line "
+        "loosely, so a look-alike there moves the balls little but turns the view by degrees.",
+    )
 
 
 class MetricsConfig(_Section):

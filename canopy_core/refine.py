@@ -271,26 +271,30 @@ def check_icp_agreement(reports: list[IcpRefinement], config: IcpConfig) -> None
     """Refuse a ball registration that the views' own surfaces contradict.
 
     The anchored ICP holds the balls to each other with their fits' accuracy (millimetres), so when it
-    still moves a view's balls by more than ``config.max_disagreement_m`` to line up the ground and the
-    trunk's foot, the balls and the surfaces tell different poses. The balls then lie: a look-alike was
-    taken for one of them in some view and happened to make a triangle of the right sides (a sphere fitted
-    on the trunk at another height, an apple where the ball's mirror image would lie), and every number
-    measured from that registration would be wrong without a sign.
+    still moves a view's balls by more than ``config.max_disagreement_m``, or turns the view by more than
+    ``config.max_disagreement_deg``, to line up the ground and the trunk's foot, the balls and the surfaces
+    tell different poses. The balls then lie: a look-alike was taken for one of them in some view and
+    happened to make a triangle of the right sides (a sphere fitted on the trunk at another height, an
+    apple where the ball's mirror image would lie, fragments of a yard's clutter with balls nearly in a
+    line), and every number measured from that registration would be wrong without a sign.
 
     Raises
     ------
     RegistrationFailed
-        Naming the first such view and how far its balls would have to move.
+        Naming the first such view and how far its balls would have to move or the view turn.
     """
     for report in reports:
-        if report.ball_shift_m > config.max_disagreement_m:
+        moved = report.ball_shift_m > config.max_disagreement_m
+        turned = report.rotation_change_deg > config.max_disagreement_deg
+        if moved or turned:
             raise RegistrationFailed(
                 f"the views' ground and trunk line up only with this view's balls moved by "
-                f"{report.ball_shift_m * 1000:.0f} mm, more than their fits allow "
-                f"({config.max_disagreement_m * 1000:.0f} mm): something else of a ball's colour was "
+                f"{report.ball_shift_m * 1000:.0f} mm and the view turned {report.rotation_change_deg:.1f} "
+                f"degrees, more than their fits allow ({config.max_disagreement_m * 1000:.0f} mm, "
+                f"{config.max_disagreement_deg:.0f} degrees): something else of a ball's colour was "
                 "probably taken for it in some view",
                 view=report.view,
-                field="icp.max_disagreement_m",
+                field="icp.max_disagreement_m" if moved else "icp.max_disagreement_deg",
                 hint="check with `canopy balls --preview` which sphere was taken for each ball; clear what "
                 "looks like a ball from around them, or re-lay them in open view, and capture again",
             )

@@ -167,3 +167,31 @@ def test_surfaces_that_contradict_the_balls_by_more_than_their_fits_allow_fail_t
         config=IcpConfig(),
     )
     check_icp_agreement(reports, IcpConfig())
+
+
+def test_surfaces_that_turn_a_view_about_balls_nearly_in_a_line_fail_the_registration() -> None:
+    """Balls nearly in a line (a look-alike taken for one where the three line up) hold the view's turn
+    about that line loosely: the ground says the view is tilted 8 degrees about it, and the balls move only
+    a few centimetres. The turn alone fails the registration, naming its setting."""
+    rng = np.random.default_rng(5)
+    in_line = np.array([[-0.6, 0.0, 0.05], [0.1, 0.03, 0.05], [0.6, -0.02, 0.05]])
+    first = _ground_and_trunk(rng)
+    about_the_line = np.eye(4)
+    about_the_line[:3, :3] = Rotation.from_rotvec(np.radians(8.0) * np.array([1.0, 0.0, 0.0])).as_matrix()
+    about_the_line[:3, 3] = -about_the_line[:3, :3] @ [0.0, 0.0, 0.05] + [0.0, 0.0, 0.05]
+    second = apply(about_the_line, _ground_and_trunk(rng))
+    _, (report,) = refine_views(
+        ["views/1", "views/2"],
+        [first, second],
+        view_anchors_m=[in_line, in_line],
+        found_by_position=[False, True],
+        config=IcpConfig(),
+    )
+    assert report.ball_shift_m < IcpConfig().max_disagreement_m
+    assert report.rotation_change_deg > IcpConfig().max_disagreement_deg
+
+    with pytest.raises(RegistrationFailed) as failure:
+        check_icp_agreement([report], IcpConfig())
+
+    assert failure.value.view == "views/2"
+    assert failure.value.field == "icp.max_disagreement_deg"
