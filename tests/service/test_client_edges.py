@@ -5,6 +5,7 @@ is wrong in one line, at once, whether or not it has a terminal."""
 from __future__ import annotations
 
 import http.server
+import json
 import shutil
 import signal
 import sqlite3
@@ -163,3 +164,26 @@ def test_watch_prints_each_measurement_as_it_completes(service: Service, one_cap
         watcher.communicate(timeout=60)
     [line] = [line for line in output.lines if ": measured H " in line]
     assert line.rstrip().endswith(" m") and " W " in line and " D " in line
+
+
+def test_a_misspelt_camera_key_is_refused_with_the_key_meant_by_upload_and_measure(
+    service: Service, one_capture: Path
+) -> None:
+    """`depth_scael` for `depth_scale`: read as absent, the default scale would have given wrong metres.
+    The client refuses the capture before sending anything, and `canopy measure` refuses it too, each
+    naming the file, the key and the key meant (the server's answer: tests/service/test_bad_input.py)."""
+    camera_path = one_capture / "views" / "2" / "camera.json"
+    camera = json.loads(camera_path.read_text())
+    camera["depth_scael"] = camera.pop("depth_scale")
+    camera_path.write_text(json.dumps(camera))
+
+    upload = _run(service, "upload", str(one_capture), "--server", service.url, "--key", service.admin_key)
+    offline = _run(service, "measure", str(one_capture))
+
+    expected = "depth_scael: unknown field; did you mean 'depth_scale'?"
+    assert upload.returncode != 0
+    assert expected in upload.stdout + upload.stderr
+    assert "views/2/camera.json" in upload.stdout + upload.stderr
+    assert _captures(service) == 0
+    assert offline.returncode == 2
+    assert expected in offline.stderr and "views/2/camera.json" in offline.stderr
