@@ -1,5 +1,5 @@
-"""Conventions every route follows: unknown query parameters are refused, and every GET that answers a
-body carries an ETag and answers ``If-None-Match`` with 304.
+"""Conventions every route follows: ids are positive 64-bit integers, unknown query parameters are refused,
+and every GET that answers a body carries an ETag and answers ``If-None-Match`` with 304.
 
 A dashboard polls lists every few seconds and a farm system re-reads a row's CSV each night: with an ETag
 they get 304 and no body while nothing changed. A misspelt filter (``?stat=failed``) that was silently
@@ -10,8 +10,9 @@ from __future__ import annotations
 
 import hashlib
 from collections.abc import Iterator
+from typing import Annotated
 
-from fastapi import Request
+from fastapi import Path, Request
 from fastapi.dependencies.models import Dependant
 from fastapi.routing import APIRoute
 from starlette.datastructures import MutableHeaders
@@ -19,7 +20,13 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from service.problems import BadRequest
 
-__all__ = ["ConditionalGet", "reject_unknown_query", "strong_etag"]
+__all__ = ["MAX_ID", "ConditionalGet", "ItemId", "reject_unknown_query", "strong_etag"]
+
+MAX_ID = 2**63 - 1
+"""The largest id: the databases' 64-bit signed integer. A larger one names nothing, and must be refused
+before it reaches the database, whose driver cannot even send it."""
+
+ItemId = Annotated[int, Path(ge=1, le=MAX_ID, description="The item's id, as the service gave it out")]
 
 
 def strong_etag(digest_hex: str) -> str:

@@ -26,6 +26,7 @@ from service.captures.uploads import (
     parse_content_digest,
     record_file,
 )
+from service.conventions import ItemId
 from service.deps import AdminKey, CaptureKey, CaptureOrReadKey, ContextDep
 from service.models import CaptureFile
 from service.problems import (
@@ -81,7 +82,7 @@ async def create(request: Request, response: Response, context: ContextDep, _key
 
 
 @router.get("/{capture_id}", response_model=CaptureOut, responses=problem_responses(NotFound))
-def read(capture_id: int, context: ContextDep, _key: CaptureOrReadKey) -> CaptureOut:
+def read(capture_id: ItemId, context: ContextDep, _key: CaptureOrReadKey) -> CaptureOut:
     """A capture and which of its files have been received."""
     with context.database.reading() as session:
         return capture_out(session, get_capture(session, capture_id))
@@ -90,7 +91,7 @@ def read(capture_id: int, context: ContextDep, _key: CaptureOrReadKey) -> Captur
 @router.delete(
     "/{capture_id}", status_code=204, response_class=Response, responses=problem_responses(NotFound, Conflict)
 )
-def remove(capture_id: int, context: ContextDep, _key: AdminKey) -> Response:
+def remove(capture_id: ItemId, context: ContextDep, _key: AdminKey) -> Response:
     """Delete a capture, its files, jobs and measurements (admin scope); 409 while its job runs."""
     context.database.write(lambda session: delete_capture(session, capture_id))
     return Response(status_code=204)
@@ -111,7 +112,7 @@ def remove(capture_id: int, context: ContextDep, _key: AdminKey) -> Response:
     ),
 )
 async def put_file(
-    capture_id: int,
+    capture_id: ItemId,
     path: str,
     request: Request,
     response: Response,

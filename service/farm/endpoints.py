@@ -9,7 +9,7 @@ from fastapi import APIRouter, Query
 from fastapi.responses import FileResponse, StreamingResponse
 from pydantic import AwareDatetime
 
-from service.conventions import strong_etag
+from service.conventions import ItemId, strong_etag
 from service.deps import ContextDep, ReadKey
 from service.farm.schemas import MeasurementSummary, OrchardOut, RowOut, TreeOut
 from service.farm.service import (
@@ -51,7 +51,7 @@ def orchards(
 
 
 @router.get("/orchards/{orchard_id}", response_model=OrchardOut, responses=problem_responses(NotFound))
-def orchard(orchard_id: int, context: ContextDep, _key: ReadKey) -> OrchardOut:
+def orchard(orchard_id: ItemId, context: ContextDep, _key: ReadKey) -> OrchardOut:
     """An orchard."""
     with context.database.reading() as session:
         return get_orchard(session, orchard_id)
@@ -59,7 +59,7 @@ def orchard(orchard_id: int, context: ContextDep, _key: ReadKey) -> OrchardOut:
 
 @router.get("/orchards/{orchard_id}/rows", response_model=Page[RowOut], responses=_LISTS)
 def rows(
-    orchard_id: int,
+    orchard_id: ItemId,
     context: ContextDep,
     _key: ReadKey,
     name: NameQuery = None,
@@ -72,7 +72,7 @@ def rows(
 
 
 @router.get("/rows/{row_id}", response_model=RowOut, responses=problem_responses(NotFound))
-def row(row_id: int, context: ContextDep, _key: ReadKey) -> RowOut:
+def row(row_id: ItemId, context: ContextDep, _key: ReadKey) -> RowOut:
     """A row."""
     with context.database.reading() as session:
         return get_row(session, row_id)
@@ -80,7 +80,7 @@ def row(row_id: int, context: ContextDep, _key: ReadKey) -> RowOut:
 
 @router.get("/rows/{row_id}/trees", response_model=Page[TreeOut], responses=_LISTS)
 def trees(
-    row_id: int,
+    row_id: ItemId,
     context: ContextDep,
     _key: ReadKey,
     name: NameQuery = None,
@@ -93,7 +93,7 @@ def trees(
 
 
 @router.get("/trees/{tree_id}", response_model=TreeOut, responses=problem_responses(NotFound))
-def tree(tree_id: int, context: ContextDep, _key: ReadKey) -> TreeOut:
+def tree(tree_id: ItemId, context: ContextDep, _key: ReadKey) -> TreeOut:
     """A tree with its latest measurement."""
     with context.database.reading() as session:
         return get_tree(session, tree_id)
@@ -101,7 +101,7 @@ def tree(tree_id: int, context: ContextDep, _key: ReadKey) -> TreeOut:
 
 @router.get("/trees/{tree_id}/measurements", response_model=Page[MeasurementSummary], responses=_LISTS)
 def tree_measurements(
-    tree_id: int, context: ContextDep, _key: ReadKey, cursor: CursorQuery = None, limit: LimitQuery = 100
+    tree_id: ItemId, context: ContextDep, _key: ReadKey, cursor: CursorQuery = None, limit: LimitQuery = 100
 ) -> Page[MeasurementSummary]:
     """A tree's measurements, newest first."""
     with context.database.reading() as session:
@@ -143,7 +143,7 @@ def measurements_export(
 
 
 @router.get("/measurements/{measurement_id}", responses=problem_responses(NotFound))
-def measurement(measurement_id: int, context: ContextDep, _key: ReadKey) -> dict[str, Any]:
+def measurement(measurement_id: ItemId, context: ContextDep, _key: ReadKey) -> dict[str, Any]:
     """A measurement: merged metrics on top, ``modes`` per view and merged, ``registration``, ``config``."""
     with context.database.reading() as session:
         return measurement_document(session, get_measurement(session, measurement_id))
@@ -157,7 +157,7 @@ def measurement(measurement_id: int, context: ContextDep, _key: ReadKey) -> dict
         also={200: {"content": {"application/octet-stream": {}}, "description": "Binary PLY, metres"}},
     ),
 )
-def cloud(measurement_id: int, context: ContextDep, _key: ReadKey) -> FileResponse:
+def cloud(measurement_id: ItemId, context: ContextDep, _key: ReadKey) -> FileResponse:
     """The fused cloud of the measured views in the world frame (z up, ground at the trunk z = 0)."""
     with context.database.reading() as session:
         record = get_measurement(session, measurement_id)

@@ -9,6 +9,7 @@ from pydantic import AwareDatetime
 from sqlalchemy.orm import Session
 
 from service.captures.service import get_capture
+from service.conventions import MAX_ID, ItemId
 from service.deps import CaptureKey, CaptureOrReadKey, ContextDep, ReadKey
 from service.jobs.schemas import JobOrder, JobOut, JobRequest, JobState
 from service.jobs.service import create_job, get_job, job_out, list_jobs
@@ -27,7 +28,7 @@ router = APIRouter(tags=["jobs"])
     responses=problem_responses(NotFound, Conflict, InvalidContent),
 )
 def start(
-    capture_id: int,
+    capture_id: ItemId,
     response: Response,
     context: ContextDep,
     _key: CaptureKey,
@@ -57,7 +58,7 @@ def start(
     response_model=JobOut,
     responses=problem_responses(NotFound, also={304: {"description": "Unchanged since the ETag sent"}}),
 )
-def read(job_id: int, context: ContextDep, _key: CaptureOrReadKey) -> JobOut:
+def read(job_id: ItemId, context: ContextDep, _key: CaptureOrReadKey) -> JobOut:
     """A job's state, stage and progress; send If-None-Match with the last ETag to get 304 while unchanged."""
     with context.database.reading() as session:
         return job_out(session, get_job(session, job_id))
@@ -71,7 +72,7 @@ def index(
         list[JobState] | None,
         Query(description="Only jobs in these states (repeat: state=queued&state=running)"),
     ] = None,
-    capture_id: Annotated[int | None, Query(description="Only jobs of this capture")] = None,
+    capture_id: Annotated[int | None, Query(ge=1, le=MAX_ID, description="Only jobs of this capture")] = None,
     since: Annotated[
         AwareDatetime | None, Query(description="Only jobs created at or after (RFC 3339)")
     ] = None,

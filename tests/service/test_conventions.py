@@ -4,6 +4,7 @@ that answer 304 while unchanged."""
 
 from __future__ import annotations
 
+import base64
 import json
 import re
 import uuid
@@ -161,3 +162,40 @@ def test_every_invalid_parameter_of_a_request_is_named(shared_service: Service) 
     assert sorted(item["field"] for item in problem["errors"]) == ["capture_id", "limit", "order"]
     for field in ("capture_id", "limit", "order"):
         assert f"{field}: " in problem["detail"]
+
+
+def test_an_id_beyond_64_bits_is_refused_naming_it_not_a_server_error(shared_service: Service) -> None:
+    """The database's driver cannot send an integer of 2^63 or more: it was a 500 on every route with an
+    id. Now such an id, or 0, is refused as invalid, naming the parameter."""
+    huge = 2**63
+    cursor = base64.urlsafe_b64encode(f"id:{huge}".encode()).decode().rstrip("=")
+    with shared_service.client() as client:
+        answers = {
+            path: client.get(path)
+            for path in (
+                f"/v1/jobs/{huge}",
+                f"/v1/captures/{huge}",
+                f"/v1/orchards/{huge}",
+                f"/v1/orchards/{huge}/rows",
+                f"/v1/rows/{huge}/trees",
+                f"/v1/trees/{huge}/measurements",
+                f"/v1/measurements/{huge}",
+                f"/v1/measurements/{huge}/cloud.ply",
+                "/v1/jobs/0",
+                f"/v1/jobs?capture_id={huge}",
+            )
+        }
+        started = client.post(f"/v1/captures/{huge}/jobs")
+        paged = client.get("/v1/orchards", params={"cursor": cursor})
+    for path, answer in answers.items():
+        assert answer.status_code == 422, (path, answer.text)
+        assert answer.json()["field"] in {
+            "job_id",
+            "capture_id",
+            "orchard_id",
+            "row_id",
+            "tree_id",
+            "measurement_id",
+        }, path
+    assert started.status_code == 422
+    assert (paged.status_code, paged.json()["code"]) == (400, "invalid_cursor")
