@@ -9,6 +9,7 @@ read measurements ends the run at once with one line.
 
 from __future__ import annotations
 
+import signal
 import time
 from pathlib import Path
 
@@ -218,6 +219,7 @@ def run_watch(root: Path, *, server: str, key: str, interval_s: float, settle_s:
     upload is looked at again. With a key that may read, each measurement is printed as it completes.
     """
     console, errors = Console(soft_wrap=True), Console(stderr=True, soft_wrap=True)
+    _stop_on_signals()
     try:
         transport, scopes = _watch_connect(server, key, interval_s, errors)
     except _CannotStart as exc:
@@ -266,6 +268,14 @@ def run_watch(root: Path, *, server: str, key: str, interval_s: float, settle_s:
     finally:
         transport.close()
     return 0
+
+
+def _stop_on_signals() -> None:
+    """Ctrl-C (SIGINT) and a service manager's SIGTERM both end a watch between two steps, as
+    KeyboardInterrupt: also when it was started with SIGINT ignored (in the background of a script),
+    which Python would otherwise keep, so that nothing but SIGKILL would stop it."""
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    signal.signal(signal.SIGTERM, signal.default_int_handler)
 
 
 def _watch_connect(server: str, key: str, interval_s: float, errors: Console) -> tuple[Transport, list[str]]:

@@ -187,3 +187,29 @@ def test_a_misspelt_camera_key_is_refused_with_the_key_meant_by_upload_and_measu
     assert _captures(service) == 0
     assert offline.returncode == 2
     assert expected in offline.stderr and "views/2/camera.json" in offline.stderr
+
+
+@pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_watch_stops_on_ctrl_c_or_sigterm_even_started_with_sigint_ignored(
+    service: Service, tmp_path: Path, stop: signal.Signals
+) -> None:
+    """A watch started in the background of a script inherits SIGINT ignored, and a service manager
+    stops it with SIGTERM: either way it says so and ends, where before only SIGKILL stopped it."""
+    day = tmp_path / "today"
+    day.mkdir()
+    watcher = subprocess.Popen(
+        [CANOPY, "watch", str(day), "--server", service.url, "--key", service.admin_key, "--interval", "0.2"],
+        env=service.environment,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN),
+    )
+    output = _Lines(watcher.stdout)
+    try:
+        _wait_for(lambda: output.holds("watching "), timeout_s=60)
+        watcher.send_signal(stop)
+        assert watcher.wait(timeout=30) == 0
+    finally:
+        watcher.kill()
+    assert output.holds("stopped")
