@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import difflib
 import json
+import re
 from collections.abc import Callable, Collection
 from dataclasses import dataclass
 from datetime import datetime
@@ -52,6 +53,11 @@ CAPTURE_FORMAT = "canopy-capture/1"
 COLOR_NAMES = ("color.png", "color.jpg")
 
 
+_CONTROL = re.compile(r"[\x00-\x1f\x7f]")
+"""Names and view paths hold no control characters (a NUL, a newline): they become folder names, CSV
+cells, URLs and log lines."""
+
+
 class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
@@ -77,13 +83,21 @@ class CaptureManifest(_Strict):
             raise ValueError(f"unsupported format {value!r}; expected {CAPTURE_FORMAT!r}")
         return value
 
+    @field_validator("orchard", "row", "tree")
+    @classmethod
+    def _printable(cls, name: str) -> str:
+        if _CONTROL.search(name):
+            raise ValueError(f"{name!r} holds a control character (a NUL, a tab, a newline)")
+        return name
+
     @field_validator("views")
     @classmethod
     def _safe_view_paths(cls, views: list[str]) -> list[str]:
         for view in views:
             path = PurePosixPath(view)
             if (
-                str(path) != view
+                _CONTROL.search(view)
+                or str(path) != view
                 or path.is_absolute()
                 or "\\" in view
                 or len(path.parts) != 2
@@ -96,6 +110,13 @@ class CaptureManifest(_Strict):
         return views
 
 
+_FIELD_OF_VIEW_DEG = (20.0, 150.0)
+"""Every RGB-D camera a crew carries sees between these angles across its image's width: a focal length
+outside them is a typo or another unit (millimetres for pixels), and would scale every metre."""
+_PIXEL_ASPECT = (0.8, 1.25)
+"""fy / fx: a camera's pixels are square to a per cent; a ratio outside this is a typo."""
+
+
 class _IntrinsicsModel(_Strict):
     width: int = Field(gt=0, le=20000)
     height: int = Field(gt=0, le=20000)
@@ -103,6 +124,26 @@ class _IntrinsicsModel(_Strict):
     fy: float = Field(gt=0.0, allow_inf_nan=False)
     cx: float = Field(allow_inf_nan=False)
     cy: float = Field(allow_inf_nan=False)
+
+    @model_validator(mode="after")
+    def _plausible(self) -> _IntrinsicsModel:
+        if not (0.0 <= self.cx <= self.width and 0.0 <= self.cy <= self.height):
+            raise ValueError(
+                f"the principal point ({self.cx:g}, {self.cy:g}) lies outside the {self.width}x{self.height} "
+                "image; cx and cy are pixels from its top-left corner"
+            )
+        field_of_view = float(np.degrees(2.0 * np.arctan(self.width / (2.0 * self.fx))))
+        low, high = _FIELD_OF_VIEW_DEG
+        if not low <= field_of_view <= high:
+            raise ValueError(
+                f"fx {self.fx:g} px gives a field of view of {field_of_view:.1f} degrees across the "
+                f"{self.width}-pixel width, where a camera sees {low:.0f}-{high:.0f}; fx and fy are in pixels"
+            )
+        if not _PIXEL_ASPECT[0] <= self.fy / self.fx <= _PIXEL_ASPECT[1]:
+            raise ValueError(
+                f"fy {self.fy:g} and fx {self.fx:g} differ too much for a camera's square pixels"
+            )
+        return self
 
 
 _FORMER_DEPTH_SCALE = 1000.0
@@ -247,12 +288,22 @@ def _is_model(annotation: object) -> bool:
 
 
 def _load_json(data: bytes, *, file: str, view: str | None) -> Any:
+    """The JSON value of a file that must be UTF-8 text (``json.loads`` would guess UTF-16 or UTF-32 from
+    the bytes: one format, one encoding), nested no deeper than Python's parser reaches."""
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise CaptureError(
+            f"is not UTF-8 text (byte {exc.start}); save it as UTF-8", file=file, view=view
+        ) from exc
     try:
         # NaN and Infinity (which careless exporters write) parse as floats, so that validation names the
         # field that holds them.
-        return json.loads(data)
+        return json.loads(text)
     except ValueError as exc:
         raise CaptureError(f"not valid JSON ({exc})", file=file, view=view) from exc
+    except RecursionError as exc:
+        raise CaptureError("JSON nested too deeply to be a capture file", file=file, view=view) from exc
 
 
 def parse_manifest(data: bytes, *, file: str = "capture.json") -> CaptureManifest:

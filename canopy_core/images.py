@@ -7,6 +7,7 @@ Pillow reads the header first, so an oversized image (a decompression bomb) is r
 from __future__ import annotations
 
 import io
+from pathlib import PurePosixPath
 
 import numpy as np
 from PIL import Image, UnidentifiedImageError
@@ -26,6 +27,11 @@ _DEPTH_MODES = {"I;16", "I;16L", "I;16B"}
 _COLOR_MODES = {"RGB", "RGBA", "P"}
 
 
+_FORMAT_OF_SUFFIX = {".png": "PNG", ".jpg": "JPEG", ".jpeg": "JPEG"}
+"""The image format a file's name promises: bytes of another format under it (a PNG saved as color.jpg) are
+refused, so what a capture's files are called is what they hold."""
+
+
 def _open(data: bytes, *, file: str, view: str | None, max_pixels: int) -> Image.Image:
     """Open an image and check its size from the header, before any pixel is decoded."""
     if not data:
@@ -38,6 +44,14 @@ def _open(data: bytes, *, file: str, view: str | None, max_pixels: int) -> Image
         raise CaptureError(f"not a readable PNG or JPEG image ({exc})", file=file, view=view) from exc
     if image.format not in {"PNG", "JPEG"}:
         raise CaptureError(f"is a {image.format} image; PNG or JPEG expected", file=file, view=view)
+    suffix = PurePosixPath(file).suffix.lower()
+    if _FORMAT_OF_SUFFIX.get(suffix, image.format) != image.format:
+        raise CaptureError(
+            f"holds a {image.format} image under a {suffix} name; save it as {_FORMAT_OF_SUFFIX[suffix]} or "
+            "name it for what it holds",
+            file=file,
+            view=view,
+        )
     if image.width * image.height > max_pixels:
         raise CaptureError(
             f"image of {image.width}x{image.height} pixels exceeds the limit of {max_pixels} pixels",

@@ -147,7 +147,7 @@ def test_missing_intrinsics_field_is_named(capture_dir: Path) -> None:
 def test_colour_intrinsics_without_extrinsics_is_refused(capture_dir: Path) -> None:
     _edit_json(
         capture_dir / "views/1/camera.json",
-        lambda d: d.update(color_intrinsics={"width": 64, "height": 48, "fx": 1, "fy": 1, "cx": 0, "cy": 0}),
+        lambda d: d.update(color_intrinsics=dict(d["depth_intrinsics"])),
     )
     assert "given together" in _error(capture_dir).message
 
@@ -300,3 +300,60 @@ def test_a_capture_accepted_before_the_format_became_strict_is_still_read_as_it_
     assert capture.views[0].camera.depth_scale == 1000.0
     with pytest.raises(CaptureError, match="serial: unknown field"):
         load_capture(capture_dir)
+
+
+# --- hostile and mistaken files: each refused naming the file and what is wrong, never a crash -------------
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        (
+            lambda d: d["depth_intrinsics"].update(cx=1e9),
+            "principal point (1e+09, 24) lies outside the 64x48",
+        ),
+        (lambda d: d["depth_intrinsics"].update(cy=-3.0), "principal point (32, -3) lies outside"),
+        (lambda d: d["depth_intrinsics"].update(fx=3.6, fy=3.6), "field of view of 167.2 degrees"),
+        (lambda d: d["depth_intrinsics"].update(fx=5000.0, fy=5000.0), "field of view of 0.7 degrees"),
+        (lambda d: d["depth_intrinsics"].update(fy=100.0), "differ too much"),
+    ],
+)
+def test_implausible_intrinsics_are_refused_naming_the_camera_file(
+    capture_dir: Path, change: Callable[[dict], None], message: str
+) -> None:
+    """A principal point off the image or a focal length in millimetres would scale every metre measured;
+    with cx 1e9 the job used to fail later with a misleading 'no red point in the view'."""
+    _edit_json(capture_dir / "views/1/camera.json", change)
+    error = _error(capture_dir)
+    assert error.file == "views/1/camera.json" and error.field == "depth_intrinsics"
+    assert message in error.message
+
+
+def test_a_camera_file_in_utf16_is_refused_as_not_utf8(capture_dir: Path) -> None:
+    path = capture_dir / "views/2/camera.json"
+    path.write_bytes(path.read_text().encode("utf-16"))
+    error = _error(capture_dir)
+    assert error.file == "views/2/camera.json"
+    assert "is not UTF-8 text" in error.message
+
+
+def test_json_nested_thousands_deep_is_refused_not_a_crash(capture_dir: Path) -> None:
+    (capture_dir / "capture.json").write_text("[" * 100_000 + "]" * 100_000)
+    error = _error(capture_dir)
+    assert error.file == "capture.json"
+    assert "nested too deeply" in error.message
+
+
+@pytest.mark.parametrize("name", ["T\x0007", "T07\n", "\tT07"])
+def test_a_name_with_a_control_character_is_refused(capture_dir: Path, name: str) -> None:
+    _edit_json(capture_dir / "capture.json", lambda d: d.update(tree=name))
+    error = _error(capture_dir)
+    assert error.file == "capture.json" and error.field == "tree"
+    assert "control character" in error.message
+
+
+def test_png_bytes_under_a_jpeg_name_are_refused_naming_the_file(capture_dir: Path) -> None:
+    (capture_dir / "views/1/color.png").rename(capture_dir / "views/1/color.jpg")
+    error = _error(capture_dir)
+    assert error.file == "views/1/color.jpg"
+    assert "holds a PNG image under a .jpg name" in error.message

@@ -65,9 +65,13 @@ def camera_json(camera: dict[str, Any] = CAMERA) -> bytes:
 
 
 def camera_of_size(width: int, height: int) -> dict[str, Any]:
-    """The test camera, with depth intrinsics for an image of ``width`` x ``height``."""
+    """The test camera, with depth intrinsics for an image of ``width`` x ``height`` (the same field of
+    view: focal lengths scaled with the width)."""
     camera = copy.deepcopy(CAMERA)
-    camera["depth_intrinsics"].update(width=width, height=height, cx=width / 2, cy=height / 2)
+    focal = CAMERA["depth_intrinsics"]["fx"] * width / CAMERA["depth_intrinsics"]["width"]
+    camera["depth_intrinsics"].update(
+        width=width, height=height, fx=focal, fy=focal, cx=width / 2, cy=height / 2
+    )
     return camera
 
 
