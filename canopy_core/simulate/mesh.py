@@ -78,10 +78,13 @@ def merge_meshes(meshes: Sequence[Mesh]) -> Mesh:
 
 
 def hsv_to_rgb(hue_deg: np.ndarray, saturation: np.ndarray, value: np.ndarray) -> np.ndarray:
-    """RGB in [0, 1], (n, 3) float32, of colours given by hue (degrees), saturation and value in [0, 1]."""
+    """RGB in [0, 1], (n, 3) float32, of colours given by hue (degrees), saturation and value in [0, 1];
+    none for none (a ground patch that covers no point: OpenCV refuses an empty image)."""
     hsv = np.stack(
         [np.mod(hue_deg, 360.0), np.clip(saturation, 0.0, 1.0), np.clip(value, 0.0, 1.0)], axis=-1
     ).astype(np.float32)
+    if hsv.shape[0] == 0:
+        return np.zeros((0, 3), dtype=np.float32)
     return cv2.cvtColor(hsv[None], cv2.COLOR_HSV2RGB)[0]
 
 
