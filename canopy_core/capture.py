@@ -23,7 +23,15 @@ from pathlib import Path, PurePosixPath
 from typing import Any
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
 
 from canopy_core.config import BallSet, RoiConfig
 from canopy_core.errors import CaptureError
@@ -58,6 +66,15 @@ _CONTROL = re.compile(r"[\x00-\x1f\x7f]")
 cells, URLs and log lines."""
 
 
+_STORED = "stored"
+"""Validation context key: the file was accepted earlier, perhaps before a rule was added; the rules added
+since (control characters, plausible intrinsics, UTF-8) do not refuse what was acknowledged then."""
+
+
+def _accepted_earlier(info: ValidationInfo) -> bool:
+    return bool(info.context and info.context.get(_STORED))
+
+
 class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
@@ -85,18 +102,18 @@ class CaptureManifest(_Strict):
 
     @field_validator("orchard", "row", "tree")
     @classmethod
-    def _printable(cls, name: str) -> str:
-        if _CONTROL.search(name):
+    def _printable(cls, name: str, info: ValidationInfo) -> str:
+        if _CONTROL.search(name) and not _accepted_earlier(info):
             raise ValueError(f"{name!r} holds a control character (a NUL, a tab, a newline)")
         return name
 
     @field_validator("views")
     @classmethod
-    def _safe_view_paths(cls, views: list[str]) -> list[str]:
+    def _safe_view_paths(cls, views: list[str], info: ValidationInfo) -> list[str]:
         for view in views:
             path = PurePosixPath(view)
             if (
-                _CONTROL.search(view)
+                (_CONTROL.search(view) and not _accepted_earlier(info))
                 or str(path) != view
                 or path.is_absolute()
                 or "\\" in view
@@ -126,7 +143,9 @@ class _IntrinsicsModel(_Strict):
     cy: float = Field(allow_inf_nan=False)
 
     @model_validator(mode="after")
-    def _plausible(self) -> _IntrinsicsModel:
+    def _plausible(self, info: ValidationInfo) -> _IntrinsicsModel:
+        if _accepted_earlier(info):
+            return self
         if not (0.0 <= self.cx <= self.width and 0.0 <= self.cy <= self.height):
             raise ValueError(
                 f"the principal point ({self.cx:g}, {self.cy:g}) lies outside the {self.width}x{self.height} "
@@ -287,15 +306,19 @@ def _is_model(annotation: object) -> bool:
     return isinstance(annotation, type) and issubclass(annotation, BaseModel)
 
 
-def _load_json(data: bytes, *, file: str, view: str | None) -> Any:
-    """The JSON value of a file that must be UTF-8 text (``json.loads`` would guess UTF-16 or UTF-32 from
-    the bytes: one format, one encoding), nested no deeper than Python's parser reaches."""
-    try:
-        text = data.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise CaptureError(
-            f"is not UTF-8 text (byte {exc.start}); save it as UTF-8", file=file, view=view
-        ) from exc
+def _load_json(data: bytes, *, file: str, view: str | None, stored: bool = False) -> Any:
+    """The JSON value of a file that must be UTF-8 text, with or without a byte-order mark (``json.loads``
+    would guess UTF-16 or UTF-32 from the bytes: one format, one encoding), nested no deeper than Python's
+    parser reaches. A ``stored`` file, accepted before UTF-8 was required, is read as it was then."""
+    if stored:
+        text: str | bytes = data
+    else:
+        try:
+            text = data.decode("utf-8-sig")
+        except UnicodeDecodeError as exc:
+            raise CaptureError(
+                f"is not UTF-8 text (byte {exc.start}); save it as UTF-8", file=file, view=view
+            ) from exc
     try:
         # NaN and Infinity (which careless exporters write) parse as floats, so that validation names the
         # field that holds them.
@@ -327,7 +350,9 @@ def stored_manifest(raw: dict[str, Any]) -> CaptureManifest:
     """
     known = {key: value for key, value in raw.items() if key in CaptureManifest.model_fields}
     unknown = {key: value for key, value in raw.items() if key not in CaptureManifest.model_fields}
-    return CaptureManifest.model_validate({**known, "extras": {**unknown, **known.get("extras", {})}})
+    return CaptureManifest.model_validate(
+        {**known, "extras": {**unknown, **known.get("extras", {})}}, context={_STORED: True}
+    )
 
 
 def parse_camera(data: bytes, *, file: str, view: str | None = None, stored: bool = False) -> CameraModel:
@@ -337,14 +362,14 @@ def parse_camera(data: bytes, *, file: str, view: str | None = None, stored: boo
     2026-11-24, which ignored unknown top-level keys and took a missing ``depth_scale`` as
     ``_FORMER_DEPTH_SCALE``; it is read as it was accepted, so that nothing acknowledged then is refused now.
     """
-    raw = _load_json(data, file=file, view=view)
+    raw = _load_json(data, file=file, view=view, stored=stored)
     if not isinstance(raw, dict):
         raise CaptureError("must hold a JSON object", file=file, view=view)
     if stored:
         raw = {key: value for key, value in raw.items() if key in _CameraModel.model_fields}
         raw.setdefault("depth_scale", _FORMER_DEPTH_SCALE)
     try:
-        model = _CameraModel.model_validate(raw)
+        model = _CameraModel.model_validate(raw, context={_STORED: stored})
     except ValidationError as exc:
         _raise_validation(exc, _CameraModel, file=file, view=view)
         raise
@@ -456,6 +481,7 @@ def load_view(
         view=name,
         expected_size=camera.color_size,
         max_pixels=max_pixels,
+        stored=stored,
     )
     return View(name=name, depth_raw=depth, color_rgb=color, camera=camera)
 

@@ -32,8 +32,9 @@ _FORMAT_OF_SUFFIX = {".png": "PNG", ".jpg": "JPEG", ".jpeg": "JPEG"}
 refused, so what a capture's files are called is what they hold."""
 
 
-def _open(data: bytes, *, file: str, view: str | None, max_pixels: int) -> Image.Image:
-    """Open an image and check its size from the header, before any pixel is decoded."""
+def _open(data: bytes, *, file: str, view: str | None, max_pixels: int, stored: bool = False) -> Image.Image:
+    """Open an image and check its size from the header, before any pixel is decoded, and its format
+    against its name (unless ``stored``: accepted before that rule)."""
     if not data:
         raise CaptureError("the file is empty", file=file, view=view)
     try:
@@ -45,7 +46,7 @@ def _open(data: bytes, *, file: str, view: str | None, max_pixels: int) -> Image
     if image.format not in {"PNG", "JPEG"}:
         raise CaptureError(f"is a {image.format} image; PNG or JPEG expected", file=file, view=view)
     suffix = PurePosixPath(file).suffix.lower()
-    if _FORMAT_OF_SUFFIX.get(suffix, image.format) != image.format:
+    if not stored and _FORMAT_OF_SUFFIX.get(suffix, image.format) != image.format:
         raise CaptureError(
             f"holds a {image.format} image under a {suffix} name; save it as {_FORMAT_OF_SUFFIX[suffix]} or "
             "name it for what it holds",
@@ -115,14 +116,16 @@ def decode_color(
     view: str | None = None,
     expected_size: tuple[int, int] | None = None,
     max_pixels: int = DEFAULT_MAX_PIXELS,
+    stored: bool = False,
 ) -> np.ndarray:
     """Decode a colour PNG or JPEG into a ``(height, width, 3)`` uint8 RGB array.
 
     ``expected_size`` is ``(width, height)`` from camera.json (colour intrinsics, or the depth size when the
     colour is registered to the depth image). Alpha is dropped; palette images are expanded; 48-bit RGB
     PNGs are reduced to 8 bits by Pillow; grey images are refused because ball detection needs colour.
+    ``stored``: accepted earlier, when a PNG under a .jpg name still passed.
     """
-    image = _open(data, file=file, view=view, max_pixels=max_pixels)
+    image = _open(data, file=file, view=view, max_pixels=max_pixels, stored=stored)
     if image.mode not in _COLOR_MODES:
         raise CaptureError(f"colour must be 8-bit RGB; this image is mode {image.mode}", file=file, view=view)
     rgb = np.asarray(image.convert("RGB") if image.mode != "RGB" else image, dtype=np.uint8)

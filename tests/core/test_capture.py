@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import json
 from collections.abc import Callable
 from pathlib import Path
@@ -10,8 +11,9 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from canopy_core.capture import folder_reader, load_capture, read_capture, stored_manifest
+from canopy_core.capture import folder_reader, load_capture, parse_camera, read_capture, stored_manifest
 from canopy_core.errors import CaptureError
+from canopy_core.images import decode_color
 
 from .conftest import CAMERA
 
@@ -357,3 +359,39 @@ def test_png_bytes_under_a_jpeg_name_are_refused_naming_the_file(capture_dir: Pa
     error = _error(capture_dir)
     assert error.file == "views/1/color.jpg"
     assert "holds a PNG image under a .jpg name" in error.message
+
+
+def test_a_json_file_saved_with_a_byte_order_mark_is_read(capture_dir: Path) -> None:
+    """Windows Notepad saves UTF-8 with a byte-order mark: still UTF-8."""
+    path = capture_dir / "views/1/camera.json"
+    path.write_bytes(b"\xef\xbb\xbf" + path.read_bytes())
+    assert load_capture(capture_dir).views[0].camera.depth_scale == 1000.0
+
+
+def test_files_accepted_before_the_newer_rules_are_still_read_as_accepted() -> None:
+    """Nothing acknowledged is refused later: a stored camera.json in UTF-16 with a principal point off
+    the image, a stored capture.json whose tree name holds a tab, PNG bytes stored as color.jpg."""
+    camera = {
+        "depth_intrinsics": {"width": 64, "height": 48, "fx": 50.0, "fy": 50.0, "cx": 1e9, "cy": 24.0},
+        "depth_scale": 1000.0,
+    }
+    stored_camera = json.dumps(camera).encode("utf-16")
+    with pytest.raises(CaptureError):
+        parse_camera(stored_camera, file="views/1/camera.json")
+    assert parse_camera(stored_camera, file="views/1/camera.json", stored=True).depth.cx == 1e9
+
+    manifest = {
+        "format": "canopy-capture/1",
+        "orchard": "North block",
+        "row": "R12",
+        "tree": "T\t07",
+        "captured_at": "2026-11-20T08:31:00Z",
+        "views": ["views/1"],
+    }
+    assert stored_manifest(manifest).tree == "T\t07"
+
+    png = io.BytesIO()
+    Image.fromarray(np.full((48, 64, 3), 128, dtype=np.uint8)).save(png, format="PNG")
+    with pytest.raises(CaptureError):
+        decode_color(png.getvalue(), file="views/1/color.jpg")
+    assert decode_color(png.getvalue(), file="views/1/color.jpg", stored=True).shape == (48, 64, 3)
