@@ -160,6 +160,7 @@ def balls_off_ground(
         f"{height:.2f} m above it, where a ball's stands {radius_m:.2f} m. Something else of its colour (a "
         "fallen apple?) was probably taken for it, and no other sphere of its colour rests on the ground "
         "round the trunk",
+        field="ground.max_tilt_from_balls_deg",
         hint=f"check with `canopy balls --preview` what was taken for the {off} ball; lay the balls on open "
         "ground, apart from fallen fruit, and capture again",
     )

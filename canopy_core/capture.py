@@ -131,7 +131,7 @@ _FIELD_OF_VIEW_DEG = (20.0, 150.0)
 """Every RGB-D camera a crew carries sees between these angles across its image's width: a focal length
 outside them is a typo or another unit (millimetres for pixels), and would scale every metre."""
 _PIXEL_ASPECT = (0.8, 1.25)
-"""fy / fx: a camera's pixels are square to a per cent; a ratio outside this is a typo."""
+"""fy / fx: a camera's pixels are square to a per cent; a ratio off by more than a factor 1.25 is a typo."""
 
 
 class _IntrinsicsModel(_Strict):

@@ -264,6 +264,16 @@ class GroundConfig(_Section):
     trunk_radius_m: float = Field(
         0.6, gt=0.0, description="Ground height is taken from ground points within this distance of the axis."
     )
+    max_tilt_from_balls_deg: float = Field(
+        15.0,
+        gt=0.0,
+        lt=90.0,
+        description="The balls rest on the ground, so the ground found round them is level with their "
+        "centres' plane within the ground's unevenness between the balls (up to 11 degrees on simulated "
+        "orchards with bumps and grass). Tilted more, a sphere taken for a ball lies off the ground (a "
+        "fallen apple fitted at ground level): the balls are chosen again without it, or the registration "
+        "fails naming it.",
+    )
 
 
 class IcpConfig(_Section):

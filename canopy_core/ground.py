@@ -30,8 +30,6 @@ __all__ = [
 
 CAMERA_UP = np.array([0.0, -1.0, 0.0])
 """Up for a camera held roughly level, in its own frame (OpenCV axes: y points down)."""
-_MAX_GROUND_TILT_DEG = 15.0
-"""A ground fit tilted more than this from the balls' plane has found something else (a wall, a slope)."""
 _RANSAC_SAMPLE = 20_000
 _RANSAC_HYPOTHESES = 200
 _TRUNK_SLICE_M = (0.12, 0.35)
@@ -67,7 +65,7 @@ class GroundFrame:
     """How far the ground plane found round the balls tilts from the plane of the balls' centres (0 when no
     ground plane was found there)."""
     on_ground: bool
-    """Whether the balls rest on the ground found: its plane tilts less than ``_MAX_GROUND_TILT_DEG`` from
+    """Whether the balls rest on the ground found: its plane tilts less than ``max_tilt_from_balls_deg`` from
     theirs, and the frame stands on it. Else the frame is the balls' plane, which a sphere taken for a ball
     but lying off the ground tilts (see ``ball_heights_m``); True when no ground plane was found."""
     ball_heights_m: tuple[float, ...]
@@ -220,7 +218,7 @@ def fit_ground_frame(
             normal = normal if normal @ ball_up > 0 else -normal
             tilt_deg = float(np.degrees(np.arccos(np.clip(normal @ ball_up, -1, 1))))
             heights = (ball_centres_m - plane_point) @ normal
-            if tilt_deg < _MAX_GROUND_TILT_DEG:
+            if tilt_deg < config.max_tilt_from_balls_deg:
                 up, ground = normal, inliers
                 contact = centroid - ((centroid - plane_point) @ up) * up
     rotation = _world_rotation(up, forward_hint)
@@ -236,7 +234,7 @@ def fit_ground_frame(
         ground_points=int(ground.size),
         ground_rms_m=float(np.sqrt(np.mean(residual**2))),
         tilt_from_ball_plane_deg=tilt_deg,
-        on_ground=tilt_deg < _MAX_GROUND_TILT_DEG,
+        on_ground=tilt_deg < config.max_tilt_from_balls_deg,
         ball_heights_m=tuple(float(height) for height in heights),
         trunk_xy_m=(float(trunk_xy[0]), float(trunk_xy[1])),
         trunk_points=trunk_points,

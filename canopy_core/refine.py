@@ -287,12 +287,16 @@ def check_icp_agreement(reports: list[IcpRefinement], config: IcpConfig) -> None
         moved = report.ball_shift_m > config.max_disagreement_m
         turned = report.rotation_change_deg > config.max_disagreement_deg
         if moved or turned:
+            beyond = (
+                f"its balls moved by {report.ball_shift_m * 1000:.0f} mm, more than their fits allow "
+                f"({config.max_disagreement_m * 1000:.0f} mm)"
+                if moved
+                else f"the view turned by {report.rotation_change_deg:.1f} degrees, more than the balls "
+                f"leave open ({config.max_disagreement_deg:.0f} degrees)"
+            )
             raise RegistrationFailed(
-                f"the views' ground and trunk line up only with this view's balls moved by "
-                f"{report.ball_shift_m * 1000:.0f} mm and the view turned {report.rotation_change_deg:.1f} "
-                f"degrees, more than their fits allow ({config.max_disagreement_m * 1000:.0f} mm, "
-                f"{config.max_disagreement_deg:.0f} degrees): something else of a ball's colour was "
-                "probably taken for it in some view",
+                f"the views' ground and trunk line up only with {beyond}: something else of a ball's "
+                "colour was probably taken for it in some view",
                 view=report.view,
                 field="icp.max_disagreement_m" if moved else "icp.max_disagreement_deg",
                 hint="check with `canopy balls --preview` which sphere was taken for each ball; clear what "

@@ -10,17 +10,27 @@ from __future__ import annotations
 
 import hashlib
 from collections.abc import Iterator
+from datetime import UTC, datetime
 from typing import Annotated
 
-from fastapi import Path, Request
+from fastapi import Path, Query, Request, Response
 from fastapi.dependencies.models import Dependant
 from fastapi.routing import APIRoute
+from pydantic import AfterValidator, AwareDatetime
 from starlette.datastructures import MutableHeaders
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from service.problems import BadRequest
 
-__all__ = ["MAX_ID", "ConditionalGet", "ItemId", "reject_unknown_query", "strong_etag"]
+__all__ = [
+    "MAX_ID",
+    "ConditionalGet",
+    "ItemId",
+    "SinceQuery",
+    "reject_unknown_query",
+    "strong_etag",
+    "unchanged",
+]
 
 MAX_ID = 2**63 - 1
 """The largest id: the databases' 64-bit signed integer. A larger one names nothing, and must be refused
@@ -30,8 +40,31 @@ ItemId = Annotated[int, Path(ge=1, le=MAX_ID, description="The item's id, as the
 
 
 def strong_etag(digest_hex: str) -> str:
-    """The ETag header value for content known by a hex digest (at most 32 characters of it are kept)."""
-    return f'"{digest_hex[:32]}"'
+    """The ETag header value for content known by its hex digest."""
+    return f'"{digest_hex}"'
+
+
+def unchanged(request: Request, etag: str) -> Response | None:
+    """A 304 for a request whose If-None-Match names ``etag``, else None: a route whose body is large or
+    streamed (a cloud, the CSV) asks this before it reads or queries anything for the body."""
+    if_none_match = request.headers.get("if-none-match")
+    if if_none_match is None or not _matches(if_none_match, etag):
+        return None
+    return Response(status_code=304, headers={"ETag": etag, "Cache-Control": "no-cache"})
+
+
+def _utc(moment: datetime) -> datetime:
+    try:
+        return moment.astimezone(UTC)
+    except OverflowError as exc:
+        raise ValueError("the time is out of range once in UTC") from exc
+
+
+SinceQuery = Annotated[
+    AwareDatetime | None,
+    AfterValidator(lambda moment: None if moment is None else _utc(moment)),
+    Query(description="At or after this time (RFC 3339 with a time zone)"),
+]
 
 
 def _query_names(dependant: Dependant) -> Iterator[str]:
@@ -66,7 +99,7 @@ def _matches(if_none_match: str, etag: str) -> bool:
 
 
 class ConditionalGet:
-    """ASGI middleware: ETag and 304 for every successful GET or HEAD.
+    """ASGI middleware: ETag and 304 for every successful GET.
 
     A response that brings its own ETag (a file known by its SHA-256, the CSV by its rows) keeps it; a
     JSON body without one gets the SHA-256 of its bytes. When the request's ``If-None-Match`` names the
@@ -77,7 +110,7 @@ class ConditionalGet:
         self.app = app
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if scope["type"] != "http" or scope["method"] not in {"GET", "HEAD"}:
+        if scope["type"] != "http" or scope["method"] != "GET":
             await self.app(scope, receive, send)
             return
         if_none_match = next(
@@ -117,6 +150,7 @@ class ConditionalGet:
 
 
 def _not_modified(headers: MutableHeaders) -> Message:
+    """The start of a 304 answer carrying the validators of the response it replaces, and no body."""
     kept = [(name, value) for name, value in headers.raw if name in {b"etag", b"cache-control", b"vary"}]
     return {"type": "http.response.start", "status": 304, "headers": kept}
 

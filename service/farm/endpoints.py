@@ -5,11 +5,10 @@ from __future__ import annotations
 from collections.abc import Iterator
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Query
+from fastapi import APIRouter, Query, Request, Response
 from fastapi.responses import FileResponse, StreamingResponse
-from pydantic import AwareDatetime
 
-from service.conventions import ItemId, strong_etag
+from service.conventions import ItemId, SinceQuery, strong_etag, unchanged
 from service.deps import ContextDep, ReadKey
 from service.farm.schemas import MeasurementSummary, OrchardOut, RowOut, TreeOut
 from service.farm.service import (
@@ -118,14 +117,17 @@ def tree_measurements(
 def measurements_export(
     context: ContextDep,
     _key: ReadKey,
+    request: Request,
     orchard: Annotated[str | None, Query(description="Orchard name")] = None,
     row: Annotated[str | None, Query(description="Row name")] = None,
-    since: Annotated[AwareDatetime | None, Query(description="Captured at or after (ISO 8601)")] = None,
-) -> StreamingResponse:
-    """Measurements as CSV (metres), for a row, an orchard or everything."""
-
+    since: SinceQuery = None,
+) -> Response:
+    """Measurements as CSV (metres), for a row, an orchard or everything; ``since`` is the capture time."""
     with context.database.reading() as session:
         etag = measurements_csv_etag(session, orchard=orchard, row=row, since=since)
+    not_modified = unchanged(request, etag)
+    if not_modified is not None:
+        return not_modified
 
     def lines() -> Iterator[str]:
         with context.database.reading() as session:
@@ -157,10 +159,14 @@ def measurement(measurement_id: ItemId, context: ContextDep, _key: ReadKey) -> d
         also={200: {"content": {"application/octet-stream": {}}, "description": "Binary PLY, metres"}},
     ),
 )
-def cloud(measurement_id: ItemId, context: ContextDep, _key: ReadKey) -> FileResponse:
+def cloud(measurement_id: ItemId, request: Request, context: ContextDep, _key: ReadKey) -> Response:
     """The fused cloud of the measured views in the world frame (z up, ground at the trunk z = 0)."""
     with context.database.reading() as session:
         record = get_measurement(session, measurement_id)
+    etag = strong_etag(record.cloud_sha256)
+    not_modified = unchanged(request, etag)
+    if not_modified is not None:
+        return not_modified
     path = context.store.path(record.cloud_sha256)
     if not path.is_file():
         raise ApiError(f"the fused cloud of measurement {measurement_id} is missing from the blob store")
@@ -168,5 +174,5 @@ def cloud(measurement_id: ItemId, context: ContextDep, _key: ReadKey) -> FileRes
         path,
         media_type="application/octet-stream",
         filename=f"measurement-{measurement_id}.ply",
-        headers={"ETag": strong_etag(record.cloud_sha256)},
+        headers={"ETag": etag},
     )

@@ -13,6 +13,7 @@ from typing import Any, TypeVar
 from sqlalchemy import Select, func, select
 from sqlalchemy.orm import Session
 
+from canopy_core import __version__
 from canopy_core.metrics import CanopyMetrics
 from service.conventions import strong_etag
 from service.farm.schemas import MeasurementSummary, OrchardOut, RowOut, TreeOut
@@ -205,7 +206,7 @@ def measurement_document(session: Session, measurement: Measurement) -> dict[str
     }
 
 
-def _csv_rows(
+def _csv_query(
     orchard: str | None, row: str | None, since: datetime | None
 ) -> Select[Measurement, datetime, str, str, str]:
     """The measurements the CSV export holds with these filters, with who and when, unordered."""
@@ -231,18 +232,23 @@ def measurements_csv_etag(
     """The ETag of the CSV export with these filters, known before a line of it is written.
 
     A measurement never changes once stored and ids are never reused, so the set of lines is told by its
-    count and its highest id: a new measurement raises the highest, a deleted one lowers the count.
+    count, highest id and sum of ids: a deleted one lowers the count, a new one raises the sum (also where
+    PostgreSQL commits ids out of order). The service's version is in too: a new version may write the
+    lines differently.
     """
-    counted = _csv_rows(orchard, row, since).with_only_columns(func.count(), func.max(Measurement.id))
-    count, highest = session.execute(counted).one()
-    return strong_etag(hashlib.sha256(f"{','.join(CSV_COLUMNS)}|{count}|{highest}".encode()).hexdigest())
+    counted = _csv_query(orchard, row, since).with_only_columns(
+        func.count(), func.max(Measurement.id), func.sum(Measurement.id)
+    )
+    count, highest, total = session.execute(counted).one()
+    known = f"{__version__}|{','.join(CSV_COLUMNS)}|{count}|{highest}|{total}"
+    return strong_etag(hashlib.sha256(known.encode()).hexdigest())
 
 
 def measurements_csv(
     session: Session, *, orchard: str | None, row: str | None, since: datetime | None
 ) -> Iterator[str]:
     """CSV text, header first, of every measurement matching the filters, by orchard, row, tree, time."""
-    query = _csv_rows(orchard, row, since).order_by(
+    query = _csv_query(orchard, row, since).order_by(
         Orchard.name, Row.name, Tree.name, Capture.captured_at, Measurement.id
     )
     buffer = io.StringIO()

@@ -5,11 +5,10 @@ from __future__ import annotations
 from typing import Annotated
 
 from fastapi import APIRouter, Header, Query, Response
-from pydantic import AwareDatetime
 from sqlalchemy.orm import Session
 
 from service.captures.service import get_capture
-from service.conventions import MAX_ID, ItemId
+from service.conventions import MAX_ID, ItemId, SinceQuery
 from service.deps import CaptureKey, CaptureOrReadKey, ContextDep, ReadKey
 from service.jobs.schemas import JobOrder, JobOut, JobRequest, JobState
 from service.jobs.service import create_job, get_job, job_out, list_jobs
@@ -73,14 +72,12 @@ def index(
         Query(description="Only jobs in these states (repeat: state=queued&state=running)"),
     ] = None,
     capture_id: Annotated[int | None, Query(ge=1, le=MAX_ID, description="Only jobs of this capture")] = None,
-    since: Annotated[
-        AwareDatetime | None, Query(description="Only jobs created at or after (RFC 3339)")
-    ] = None,
+    since: SinceQuery = None,
     order: Annotated[JobOrder, Query(description="newest or oldest first")] = "newest",
     cursor: CursorQuery = None,
     limit: LimitQuery = 100,
 ) -> Page[JobOut]:
-    """Jobs, newest first by default, each with its orchard, row and tree."""
+    """Jobs, newest first by default, each with its orchard, row and tree; ``since`` is the creation time."""
     with context.database.reading() as session:
         return list_jobs(
             session, states=state, capture_id=capture_id, since=since, order=order, cursor=cursor, limit=limit

@@ -195,3 +195,4 @@ def test_surfaces_that_turn_a_view_about_balls_nearly_in_a_line_fail_the_registr
 
     assert failure.value.view == "views/2"
     assert failure.value.field == "icp.max_disagreement_deg"
+    assert f"turned by {report.rotation_change_deg:.1f} degrees" in failure.value.message
