@@ -264,10 +264,15 @@ def keys_revoke(
 ) -> None:
     """Revoke a key: it stops working at once."""
     from service.keys.service import revoke_key
+    from service.problems import ApiError
 
     context = _keys_context(data)
-    with context.database.writing() as session:
-        record = revoke_key(session, prefix=prefix)
+    try:
+        with context.database.writing() as session:
+            record = revoke_key(session, prefix=prefix)
+    except ApiError as refused:
+        typer.echo(f"error: {refused.detail}", err=True)
+        raise typer.Exit(2) from refused
     if record is None:
         typer.echo(f"error: no API key with prefix {prefix!r}", err=True)
         raise typer.Exit(2)

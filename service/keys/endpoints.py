@@ -9,7 +9,7 @@ from service.deps import AdminKey, AnyKey, ContextDep
 from service.keys.schemas import KeyCreate, KeyCreated, KeyCurrent, KeyOut
 from service.keys.service import create_key, list_keys, revoke_key
 from service.models import ApiKey
-from service.problems import NotFound, problem_responses
+from service.problems import Conflict, NotFound, problem_responses
 
 __all__ = ["key_out", "router"]
 
@@ -49,7 +49,7 @@ def current(key: AnyKey) -> KeyCurrent:
     return KeyCurrent(version=__version__, key=key_out(key))
 
 
-@router.delete("/{prefix}", response_model=KeyOut, responses=problem_responses(NotFound))
+@router.delete("/{prefix}", response_model=KeyOut, responses=problem_responses(NotFound, Conflict))
 def revoke(prefix: str, context: ContextDep, _key: AdminKey) -> KeyOut:
     """Revoke a key by its prefix; it stops working at once."""
     with context.database.writing() as session:

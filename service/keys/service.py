@@ -16,6 +16,7 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from service.models import ApiKey, utc_now
+from service.problems import Conflict
 
 __all__ = ["SCOPES", "NewKey", "authenticate", "create_key", "grants", "list_keys", "revoke_key"]
 
@@ -59,10 +60,23 @@ def list_keys(session: Session) -> list[ApiKey]:
 
 
 def revoke_key(session: Session, *, prefix: str) -> ApiKey | None:
-    """Revoke the key with this prefix; None when there is none. Revoking twice keeps the first time."""
+    """Revoke the key with this prefix; None when there is none. Revoking twice keeps the first time.
+
+    The last live admin key is not revoked (a 409 problem): without one nobody could make or revoke keys
+    over the API, and every user would wait for someone to run ``canopy keys create`` on the host.
+    """
     record = session.scalar(select(ApiKey).where(ApiKey.prefix == prefix))
-    if record is not None and record.revoked_at is None:
-        record.revoked_at = utc_now()
+    if record is None or record.revoked_at is not None:
+        return record
+    if "admin" in record.scopes.split():
+        live_admins = session.scalars(select(ApiKey).where(ApiKey.revoked_at.is_(None))).all()
+        if sum("admin" in key.scopes.split() for key in live_admins) == 1:
+            raise Conflict(
+                f"key {prefix} is the last admin key; create another admin key before revoking it",
+                code="last_admin_key",
+                field="prefix",
+            )
+    record.revoked_at = utc_now()
     return record
 
 

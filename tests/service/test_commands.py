@@ -189,3 +189,21 @@ def test_worker_refuses_a_database_that_was_never_migrated(tmp_path: Path) -> No
     )
     assert done.returncode == 2
     assert "not initialised" in done.stderr
+
+
+def test_the_last_admin_key_cannot_be_revoked_over_http_or_on_the_host(service: Service) -> None:
+    """Revoking it would lock every user out until someone ran `canopy keys create` on the host."""
+    only_admin = service.admin_key.split("_")[1]
+    with service.client() as client:
+        refused = client.delete(f"/v1/keys/{only_admin}")
+        still = client.get("/v1/keys")
+    on_host = service.canopy("keys", "revoke", only_admin)
+    second = service.create_key("admin")
+    with service.client(second) as client:
+        revoked = client.delete(f"/v1/keys/{only_admin}")
+        last_again = client.delete(f"/v1/keys/{second.split('_')[1]}")
+    assert (refused.status_code, refused.json()["code"]) == (409, "last_admin_key")
+    assert still.status_code == 200
+    assert on_host.returncode == 2 and "last admin key" in on_host.stderr
+    assert revoked.status_code == 200 and revoked.json()["revoked_at"] is not None
+    assert last_again.status_code == 409
