@@ -6,6 +6,7 @@ from collections.abc import Callable
 from typing import Annotated
 
 from fastapi import Depends, Request
+from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from service.context import Context
 from service.keys.service import authenticate, grants
@@ -24,16 +25,24 @@ def get_context(request: Request) -> Context:
 ContextDep = Annotated[Context, Depends(get_context)]
 
 
-def _require(*scopes: str) -> Callable[[Request, Context], ApiKey]:
+_BEARER = HTTPBearer(
+    auto_error=False,
+    scheme_name="apiKey",
+    description="An API key made by `canopy keys create` or POST /v1/keys: `Authorization: Bearer <key>`",
+)
+BearerDep = Annotated[HTTPAuthorizationCredentials | None, Depends(_BEARER)]
+"""The bearer credentials of a request, None without any; declared in the OpenAPI document as its
+security scheme, so that Swagger UI offers to send the key."""
+
+
+def _require(*scopes: str) -> Callable[[Context, HTTPAuthorizationCredentials | None], ApiKey]:
     """A dependency that lets through keys holding any of ``scopes`` (or ``admin``)."""
 
-    def check(request: Request, context: ContextDep) -> ApiKey:
-        header = request.headers.get("authorization", "")
-        kind, _, key = header.partition(" ")
-        if kind.lower() != "bearer" or not key.strip():
+    def check(context: ContextDep, credentials: BearerDep) -> ApiKey:
+        if credentials is None or credentials.scheme.lower() != "bearer" or not credentials.credentials:
             raise Unauthorized("send the API key as 'Authorization: Bearer <key>'")
         with context.database.reading() as session:
-            record = authenticate(session, key.strip())
+            record = authenticate(session, credentials.credentials.strip())
         if record is None:
             raise Unauthorized("the API key is unknown or revoked")
         if not any(grants(record, scope) for scope in scopes):

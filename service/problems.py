@@ -11,12 +11,14 @@ from typing import Any, ClassVar
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
+from pydantic import BaseModel, ConfigDict, Field
 from sqlalchemy.exc import OperationalError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from canopy_core.errors import CanopyError
 
 __all__ = [
+    "COMPONENT_REF",
     "PROBLEM_JSON",
     "ApiError",
     "BadRequest",
@@ -25,7 +27,9 @@ __all__ = [
     "InvalidContent",
     "NotFound",
     "PayloadTooLarge",
+    "Problem",
     "Unauthorized",
+    "component_schemas",
     "install_problem_handlers",
     "problem_responses",
 ]
@@ -86,6 +90,35 @@ class InvalidContent(ApiError):
     status, title, code = 422, "Invalid content", "invalid_content"
 
 
+class Problem(BaseModel):
+    """An error, as RFC 9457 problem details: every 4xx and 5xx answer of the API."""
+
+    model_config = ConfigDict(extra="allow")
+
+    type: str = Field(description="/problems/<code>, relative")
+    title: str = Field(description="The kind of error, for people")
+    status: int = Field(description="The HTTP status")
+    detail: str = Field(description="What was wrong, naming the file, view or field")
+    code: str = Field(description="The stable, machine-readable kind (docs/api.md lists them)")
+    field: str | None = Field(None, description="The field, parameter or setting at fault")
+    file: str | None = Field(None, description="The capture's file at fault")
+    view: str | None = Field(None, description="The capture's view at fault")
+
+
+COMPONENT_REF = "#/components/schemas/{model}"
+"""Where the OpenAPI document keeps a named schema; models given to :func:`component_schemas` refer there."""
+
+
+def component_schemas(*models: type[BaseModel]) -> dict[str, Any]:
+    """OpenAPI component schemas of ``models`` and of every model they nest, by name."""
+    schemas: dict[str, Any] = {}
+    for model in models:
+        schema = model.model_json_schema(ref_template=COMPONENT_REF)
+        schemas.update(schema.pop("$defs", {}))
+        schemas[model.__name__] = schema
+    return schemas
+
+
 def problem_responses(
     *errors: type[ApiError], also: dict[int | str, dict[str, Any]] | None = None
 ) -> dict[int | str, dict[str, Any]]:
@@ -94,7 +127,7 @@ def problem_responses(
     for error in errors:
         responses[error.status] = {
             "description": error.title,
-            "content": {PROBLEM_JSON: {"schema": {"type": "object"}}},
+            "content": {PROBLEM_JSON: {"schema": {"$ref": COMPONENT_REF.format(model=Problem.__name__)}}},
         }
     return responses
 

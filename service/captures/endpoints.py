@@ -8,7 +8,6 @@ from fastapi import APIRouter, Header, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from sqlalchemy.orm import Session
 
-from canopy_core.capture import CaptureManifest
 from service.bodies import read_body
 from service.captures.schemas import CaptureOut, FileOut
 from service.captures.service import (
@@ -30,6 +29,7 @@ from service.conventions import ItemId
 from service.deps import AdminKey, CaptureKey, CaptureOrReadKey, ContextDep
 from service.models import CaptureFile
 from service.problems import (
+    COMPONENT_REF,
     BadRequest,
     Conflict,
     InvalidContent,
@@ -47,7 +47,7 @@ MANIFEST_LIMIT_BYTES = 1024 * 1024
 _MANIFEST_BODY: dict[str, Any] = {
     "requestBody": {
         "required": True,
-        "content": {"application/json": {"schema": CaptureManifest.model_json_schema()}},
+        "content": {"application/json": {"schema": {"$ref": COMPONENT_REF.format(model="CaptureManifest")}}},
     }
 }
 _FILE_BODY: dict[str, Any] = {

@@ -203,3 +203,43 @@ def test_a_since_beyond_what_utc_can_hold_is_refused_not_a_server_error(shared_s
         ]
     assert [answer.status_code for answer in answers] == [422, 422]
     assert [answer.json()["field"] for answer in answers] == ["since", "since"]
+
+
+def test_the_openapi_document_resolves_and_declares_the_key_and_the_problem_schema(
+    shared_service: Service,
+) -> None:
+    """Client generators need every $ref to resolve (capture.json's body pointed at #/$defs/BallSet), the
+    bearer key declared (Swagger UI then offers to send it), and errors described as problem details."""
+    with shared_service.client() as client:
+        document = client.get("/openapi.json").json()
+
+    def refs(node: object) -> list[str]:
+        if isinstance(node, dict):
+            own = [node["$ref"]] if isinstance(node.get("$ref"), str) else []
+            return own + [ref for value in node.values() for ref in refs(value)]
+        if isinstance(node, list):
+            return [ref for value in node for ref in refs(value)]
+        return []
+
+    unresolved = []
+    for ref in set(refs(document)):
+        node: object = document
+        for part in ref.removeprefix("#/").split("/"):
+            node = node.get(part) if isinstance(node, dict) else None
+        if node is None:
+            unresolved.append(ref)
+    assert unresolved == []
+    assert document["components"]["securitySchemes"]["apiKey"]["scheme"] == "bearer"
+    operations = [
+        (path, operation)
+        for path, item in document["paths"].items()
+        if path.startswith("/v1/")
+        for operation in item.values()
+    ]
+    assert operations and all(operation.get("security") == [{"apiKey": []}] for _, operation in operations)
+    conflict = document["paths"]["/v1/captures"]["post"]["responses"]["409"]["content"]
+    assert conflict["application/problem+json"]["schema"]["$ref"] == "#/components/schemas/Problem"
+    problem = document["components"]["schemas"]["Problem"]
+    assert {"type", "title", "status", "detail", "code"} <= set(problem["required"])
+    body = document["paths"]["/v1/captures"]["post"]["requestBody"]["content"]["application/json"]
+    assert body["schema"]["$ref"] == "#/components/schemas/CaptureManifest"
