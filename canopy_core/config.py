@@ -366,14 +366,13 @@ class MetricsConfig(_Section):
         description="A body apart from the crown's main body counts as crown only with at least this many "
         "occupied 4 cm voxels (a cluster of leaves); fewer is a speck: flying pixels, a glint of wire.",
     )
-    crown_piece_seen_through_m: float = Field(
+    seen_through_margin_m: float = Field(
         0.1,
         gt=0.0,
         description="A point that another view's depth readings, all round where it projects, put at least "
-        "this far behind it was seen through by that view: a mixed pixel, not a surface. Many times the "
-        "depth noise at 4 m (about 1.3 cm in sun) and the views' registration (a few mm). A body apart "
-        "from the crown's main body most of whose points were seen through is no crown (mixed pixels "
-        "behind a wire).",
+        "this far behind it was seen through by that view: a mixed pixel or a wire thinner than a pixel, "
+        "not a surface; it is no crown. Many times the depth noise at 4 m (about 1.3 cm in sun) and the "
+        "views' registration (a few mm).",
     )
     crown_piece_min_bottom_m: float = Field(
         0.3,

@@ -389,7 +389,7 @@ def _modes(
                     own_view=i,
                     views=capture.views,
                     world_from_view=world_from_view,
-                    margin_m=config.metrics.crown_piece_seen_through_m,
+                    margin_m=config.metrics.seen_through_margin_m,
                 )
                 for i, view_points in enumerate(points)
             ]

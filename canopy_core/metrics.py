@@ -49,9 +49,6 @@ to a few centimetres; coarse enough that grouping a tree's tens of thousands of 
 _CROWN_SHARE_ABOVE = 0.5
 """A body is part of the crown when at least this share of its height lies above the crown's main body's
 lowest point: a piece of the crown does; a weed, sucker or fallen apple reaching up to it does not."""
-_PHANTOM_SHARE = 0.5
-"""A body apart from the crown's main body is a phantom when more than this share of its points were seen
-through by another view: a real piece, where another view looks at it, is seen there or hidden."""
 
 
 @dataclass(frozen=True)
@@ -202,7 +199,11 @@ def crown_mask(
 ) -> np.ndarray:
     """Mask of the crown's points among the ``candidates`` (see :func:`crown_candidates`).
 
-    The candidates outside the trunk's column are grouped into bodies separated by gaps wider than
+    A candidate another view saw through (``seen_through``, see :func:`canopy_core.visibility.seen_through`)
+    is no crown: a mixed pixel, or a trellis wire thinner than a pixel, which only the view that made it
+    shows; a leaf or branch another view looks at is seen there or hidden. Without them, a wire's points
+    no longer chain the crown out along it. The other candidates outside the trunk's column are grouped
+    into bodies separated by gaps wider than
     ``config.crown_link_m`` (on occupied voxels). The crown is the largest body and every body at its
     height, that is with at least half of its own height above the largest body's lowest point: pieces of
     the crown apart from the rest (a sparse cluster, the top leaves) are; ground vegetation, suckers, fallen
@@ -212,9 +213,7 @@ def crown_mask(
     below ``config.crown_piece_min_bottom_m`` (it rises from the ground: a trellis post, a stake, a tall
     weed beside the trunk; no crown hangs there), nor a body that is a level straight line longer
     than a leaf (a piece of trellis wire beside the crown that the wire search missed; see
-    :func:`canopy_core.segment.is_wire_piece`), nor a body apart from the rest most of whose points
-    another view saw through (``seen_through``, see :func:`canopy_core.visibility.seen_through`: mixed
-    pixels behind a wire, which only the view that made them shows). Candidates inside the column (within
+    :func:`canopy_core.segment.is_wire_piece`). Candidates inside the column (within
     ``config.trunk_column_radius_m`` of the trunk's axis: suckers, leaves next to the trunk, bark coloured
     by the leaves behind it) join the crown when they are within the link distance of it, but never link
     anything to it: not what grows at the trunk's foot, not each other up the trunk. With no candidate
@@ -241,7 +240,10 @@ def crown_mask(
     link_m, trunk_column_m = config.crown_link_m, config.trunk_column_radius_m
     radial = np.linalg.norm(points_m[:, :2] - trunk_xy_m, axis=1)
     in_column = radial <= trunk_column_m
-    grouped = np.flatnonzero(candidates & ~in_column)
+    seen = candidates & ~in_column
+    if seen_through is not None:
+        seen &= ~seen_through
+    grouped = np.flatnonzero(seen)
     if grouped.size == 0:
         return candidates.copy()
     labels, voxels = _bodies(points_m[grouped], link_m=link_m)
@@ -266,11 +268,6 @@ def crown_mask(
     at_crown_height &= ~pieces | (
         (voxels >= config.crown_piece_min_voxels) & (bottom >= config.crown_piece_min_bottom_m)
     )
-    if seen_through is not None:
-        through_share = np.bincount(
-            labels, weights=seen_through[grouped], minlength=voxels.size
-        ) / np.bincount(labels, minlength=voxels.size)
-        at_crown_height &= ~pieces | (through_share <= _PHANTOM_SHARE)
     for body in np.flatnonzero(at_crown_height):
         if body != main and is_wire_piece(
             points_m[grouped[order[starts[body] : ends[body]]]],

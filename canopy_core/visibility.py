@@ -2,8 +2,9 @@
 
 A depth pixel that sees a thin thing (a trellis wire, a leaf's edge) blends its depth with what lies behind
 it, and the point it gives stands anywhere between the two (mixed pixels). Behind a wire seen only in
-that way, such points make specks in mid-air, beside or below the crown, that look like leaves. Another
-view looking at the same place from elsewhere sees through it: its depth there reads farther. A real leaf
+that way, such points make specks in mid-air, beside or below the crown, that look like leaves; and a
+wire itself, thinner than a pixel, is seen by one view where the other sees past it. Another view looking
+at the same place from elsewhere sees through such a point: its depth there reads farther. A real leaf
 or branch the other view looks at reads where it stands, or nearer (something hides it); only a view's
 phantoms are seen through. This is evidence of geometry across views, whatever the colours.
 """
