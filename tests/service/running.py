@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import base64
 import hashlib
+import json
 import os
 import signal
 import socket
@@ -172,3 +173,19 @@ def wait_for_job(client: httpx.Client, job_url: str, *, timeout_s: float = 120.0
             return dict(job)
         time.sleep(0.1)
     raise AssertionError(f"job {job_url} did not finish in {timeout_s} s: {job}")
+
+
+def create_tree(client: httpx.Client, orchard: str, row: str, tree: str) -> int:
+    """Create a two-view capture (no files) of a tree, making its orchard and row on first sight; the
+    tree's id."""
+    manifest = {
+        "format": "canopy-capture/1",
+        "orchard": orchard,
+        "row": row,
+        "tree": tree,
+        "captured_at": "2026-11-20T08:31:00Z",
+        "views": ["views/1", "views/2"],
+    }
+    created = client.post("/v1/captures", content=json.dumps(manifest))
+    assert created.status_code == 201, created.text
+    return int(created.json()["tree_id"])

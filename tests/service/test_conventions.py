@@ -5,39 +5,17 @@ that answer 304 while unchanged."""
 from __future__ import annotations
 
 import base64
-import json
 import re
 import uuid
 from pathlib import Path
 
-import httpx
-
-from tests.service.running import Service, upload_capture
-
-
-def _manifest(orchard: str, row: str, tree: str) -> str:
-    return json.dumps(
-        {
-            "format": "canopy-capture/1",
-            "orchard": orchard,
-            "row": row,
-            "tree": tree,
-            "captured_at": "2026-11-20T08:31:00Z",
-            "views": ["views/1", "views/2"],
-        }
-    )
-
-
-def _tree_id(client: httpx.Client, orchard: str, row: str, tree: str) -> int:
-    created = client.post("/v1/captures", content=_manifest(orchard, row, tree))
-    assert created.status_code == 201, created.text
-    return int(created.json()["tree_id"])
+from tests.service.running import Service, create_tree, upload_capture
 
 
 def test_one_orchard_row_and_tree_are_read_by_id(shared_service: Service) -> None:
     orchard = f"One {uuid.uuid4().hex[:8]}"
     with shared_service.client() as client:
-        tree_id = _tree_id(client, orchard, "R7", "T3")
+        tree_id = create_tree(client, orchard, "R7", "T3")
         tree = client.get(f"/v1/trees/{tree_id}").json()
         row = client.get(f"/v1/rows/{tree['row_id']}").json()
         one = client.get(f"/v1/orchards/{row['orchard_id']}").json()
@@ -56,7 +34,7 @@ def test_lists_filter_by_exact_name(shared_service: Service) -> None:
     orchard = f"Names {uuid.uuid4().hex[:8]}"
     with shared_service.client() as client:
         for row, tree in (("R1", "T1"), ("R1", "T2"), ("R2", "T1")):
-            _tree_id(client, orchard, row, tree)
+            create_tree(client, orchard, row, tree)
         [found] = client.get("/v1/orchards", params={"name": orchard}).json()["items"]
         rows = client.get(f"/v1/orchards/{found['id']}/rows", params={"name": "R1"}).json()["items"]
         trees = client.get(f"/v1/rows/{rows[0]['id']}/trees", params={"name": "T2"}).json()["items"]
@@ -126,11 +104,11 @@ def test_a_list_s_etag_changes_when_the_list_does(shared_service: Service) -> No
     """A dashboard polling with If-None-Match gets 304 until a tree is added, then the new list."""
     orchard = f"Poll {uuid.uuid4().hex[:8]}"
     with shared_service.client() as client:
-        tree_id = _tree_id(client, orchard, "R1", "T1")
+        tree_id = create_tree(client, orchard, "R1", "T1")
         row_id = client.get(f"/v1/trees/{tree_id}").json()["row_id"]
         first = client.get(f"/v1/rows/{row_id}/trees")
         unchanged = client.get(f"/v1/rows/{row_id}/trees", headers={"If-None-Match": first.headers["etag"]})
-        _tree_id(client, orchard, "R1", "T2")
+        create_tree(client, orchard, "R1", "T2")
         changed = client.get(f"/v1/rows/{row_id}/trees", headers={"If-None-Match": first.headers["etag"]})
     assert unchanged.status_code == 304
     assert changed.status_code == 200

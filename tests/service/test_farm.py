@@ -7,27 +7,13 @@ import io
 import json
 import uuid
 
-from tests.service.running import Service
-
-
-def _capture(client, orchard: str, row: str, tree: str) -> int:  # type: ignore[no-untyped-def]
-    manifest = {
-        "format": "canopy-capture/1",
-        "orchard": orchard,
-        "row": row,
-        "tree": tree,
-        "captured_at": "2026-11-20T08:31:00Z",
-        "views": ["views/1", "views/2"],
-    }
-    created = client.post("/v1/captures", content=json.dumps(manifest))
-    assert created.status_code == 201, created.text
-    return int(created.json()["tree_id"])
+from tests.service.running import Service, create_tree
 
 
 def test_trees_of_a_row_come_in_pages_that_cover_each_once(shared_service: Service) -> None:
     orchard = f"Paging {uuid.uuid4().hex[:8]}"
     with shared_service.client() as client:
-        tree_ids = [_capture(client, orchard, "R1", f"T{n}") for n in range(5)]
+        tree_ids = [create_tree(client, orchard, "R1", f"T{n}") for n in range(5)]
         orchards = client.get("/v1/orchards", params={"limit": 1000}).json()["items"]
         orchard_id = next(item["id"] for item in orchards if item["name"] == orchard)
         [row] = client.get(f"/v1/orchards/{orchard_id}/rows").json()["items"]
