@@ -227,3 +227,23 @@ def test_a_capture_names_the_colour_files_it_was_sent(service: Service, measured
     assert sorted(capture["files_expected"]) == capture["files_received"]
     assert "views/1/color.jpg" in capture["files_expected"]
     assert capture["files_missing"] == []
+
+
+def test_the_csv_s_etag_changes_when_a_measurement_is_added(
+    service: Service, measured: dict[str, object]
+) -> None:
+    """The CSV's ETag is known before a line is written (from the measurements it holds): a new
+    measurement of the tree must change it, or a nightly sync would keep the old file."""
+    with service.client() as client:
+        before = client.get("/v1/measurements.csv").headers["etag"]
+        again = client.post(
+            f"/v1/captures/{measured['capture_id']}/jobs",
+            json={"config": {"roi": {"radius_m": 1.6}}},
+            headers={"Idempotency-Key": "second-measurement"},
+        )
+        assert again.status_code == 202, again.text
+        assert wait_for_job(client, again.headers["location"])["state"] == "succeeded"
+        after = client.get("/v1/measurements.csv", headers={"If-None-Match": before})
+    assert after.status_code == 200
+    assert after.headers["etag"] != before
+    assert len(list(csv.DictReader(io.StringIO(after.text)))) == 2
