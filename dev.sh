@@ -62,6 +62,10 @@ case "${1:-}" in
         demo="$CANOPY_DATA_DIR/demo"
         rm -rf "$demo"
         "$VENV/bin/canopy" simulate "$demo" --seed 7 --count 1 >/dev/null
+        if curl -s -o /dev/null "$server/healthz"; then
+            echo "something already answers on $server (an earlier canopy up?); stop it or set CANOPY_PORT" >&2
+            exit 1
+        fi
         "$VENV/bin/canopy" up --port "$port" &
         up_pid=$!
         trap 'kill $up_pid 2>/dev/null; wait $up_pid 2>/dev/null' EXIT

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import signal
+import socket
 import subprocess
 import sys
 import threading
@@ -74,6 +75,22 @@ def _keys_context(data: Path | None, *, init: bool = False) -> Context:
     return _migrated_context(settings)
 
 
+def _require_free_port(host: str, port: int) -> None:
+    """Exit with one line (code 2) when ``host:port`` is taken, before anything is created: otherwise the
+    server would fail after its first key was printed, and a client would find the old server there."""
+    with socket.socket() as probe:
+        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as uvicorn binds
+        try:
+            probe.bind((host, port))
+        except OSError as exc:
+            typer.echo(
+                f"error: cannot listen on {host}:{port} ({exc.strerror}): another canopy up or serve may "
+                "be running there; stop it or choose another --port",
+                err=True,
+            )
+            raise typer.Exit(2) from exc
+
+
 def _serve(context: Context, host: str, port: int) -> None:
     import uvicorn
 
@@ -85,6 +102,7 @@ def _serve(context: Context, host: str, port: int) -> None:
 @app.command()
 def serve(host: HostOpt = "127.0.0.1", port: PortOpt = 8000) -> None:
     """Run the HTTP API alone (start workers with `canopy worker`); migrates the database first."""
+    _require_free_port(host, port)
     _serve(_migrated_context(_settings()), host, port)
 
 
@@ -147,6 +165,7 @@ def up(host: HostOpt = "127.0.0.1", port: PortOpt = 8000, data: DataOpt = None) 
     """
     from service.keys.service import create_key, list_keys
 
+    _require_free_port(host, port)
     settings = _settings(data)
     context = _migrated_context(settings)
     with context.database.writing() as session:

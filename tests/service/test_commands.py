@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import signal
+import socket
 import subprocess
 import time
 from pathlib import Path
@@ -207,3 +208,29 @@ def test_the_last_admin_key_cannot_be_revoked_over_http_or_on_the_host(service: 
     assert on_host.returncode == 2 and "last admin key" in on_host.stderr
     assert revoked.status_code == 200 and revoked.json()["revoked_at"] is not None
     assert last_again.status_code == 409
+
+
+@pytest.mark.parametrize("command", ["up", "serve"])
+def test_a_port_in_use_is_said_in_one_line_before_anything_is_created(tmp_path: Path, command: str) -> None:
+    """Before, `canopy up` printed a new admin key and then failed, and `./dev.sh run` went on to talk to
+    the old server on that port."""
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        environment = {**os.environ, "CANOPY_DATA_DIR": str(tmp_path / "data")}
+        done = subprocess.run(
+            [CANOPY, command, "--port", str(port)],
+            env=environment,
+            capture_output=True,
+            text=True,
+            timeout=60,
+            check=False,
+        )
+    assert done.returncode == 2
+    assert done.stderr.strip().splitlines() == [
+        f"error: cannot listen on 127.0.0.1:{port} (Address already in use): another canopy up or serve "
+        "may be running there; stop it or choose another --port"
+    ]
+    assert "canopy_" not in done.stdout
+    assert not (tmp_path / "data" / "canopy.db").exists()
