@@ -374,6 +374,21 @@ class MetricsConfig(_Section):
         "not a surface; it is no crown. Many times the depth noise at 4 m (about 1.3 cm in sun) and the "
         "views' registration (a few mm).",
     )
+    seen_through_window_px: int = Field(
+        1,
+        ge=0,
+        le=5,
+        description="Pixels on each side of where a point projects in another view that must all see past "
+        "it (1: a 3x3 window): a point at a leaf's edge may project a pixel off the leaf.",
+    )
+    seen_through_reach_percentile: float = Field(
+        95.0,
+        gt=0.0,
+        le=100.0,
+        description="A view reads any surface nearer than this percentile of its own depth readings "
+        "(foliage, bark and soil return the sensor's light well): a pixel without a reading looking at a "
+        "place that near saw nothing there.",
+    )
     crown_piece_min_bottom_m: float = Field(
         0.3,
         ge=0.0,

@@ -390,6 +390,8 @@ def _modes(
                     views=capture.views,
                     world_from_view=world_from_view,
                     margin_m=config.metrics.seen_through_margin_m,
+                    window_px=config.metrics.seen_through_window_px,
+                    reach_percentile=config.metrics.seen_through_reach_percentile,
                 )
                 for i, view_points in enumerate(points)
             ]

@@ -21,14 +21,6 @@ from canopy_core.register import apply
 
 __all__ = ["seen_through"]
 
-_WINDOW_PX = 1
-"""Pixels on each side of where a point projects that must all see past it: a point at a leaf's edge
-may project a pixel off the leaf (registration, rounding), onto what lies behind."""
-_REACH_PERCENTILE = 95.0
-"""A view reads any surface nearer than this percentile of its own readings: leaves, bark and soil return
-the sensor's light well (foliage reflects most of the near infrared), so a pixel without a reading
-looking at a place that near saw nothing there."""
-
 
 def seen_through(
     points_m: np.ndarray,
@@ -37,18 +29,21 @@ def seen_through(
     views: Sequence[View],
     world_from_view: Sequence[np.ndarray],
     margin_m: float,
+    window_px: int,
+    reach_percentile: float,
 ) -> np.ndarray:
     """Mask of the ``(N, 3)`` world-frame points of view ``own_view`` that another view saw past.
 
     A point is seen past by view j when it projects into j's depth image in front of j's camera and every
-    pixel round it (:data:`_WINDOW_PX`) saw past it: read at least ``margin_m`` deeper than the point
-    (along j's optical axis), or read nothing though the point is nearer than j reads surfaces
-    (:data:`_REACH_PERCENTILE` of its readings): behind a wire, what a view sees past is often the sky or
-    the far ground, out of its range. ``world_from_view`` holds each view's depth-camera pose in the world
-    frame.
+    pixel within ``window_px`` of it saw past it (a point at a leaf's edge may project a pixel off the
+    leaf): read at least ``margin_m`` deeper than the point (along j's optical axis), or read nothing
+    though the point is nearer than j reads surfaces (``reach_percentile`` of its readings: leaves, bark
+    and soil return the sensor's light well, so a pixel without a reading that near saw nothing there;
+    behind a wire, what a view sees past is often the sky or the far ground, out of its range).
+    ``world_from_view`` holds each view's depth-camera pose in the world frame.
     """
     through = np.zeros(points_m.shape[0], dtype=bool)
-    offsets = np.arange(-_WINDOW_PX, _WINDOW_PX + 1)
+    offsets = np.arange(-window_px, window_px + 1)
     for index, (view, pose) in enumerate(zip(views, world_from_view, strict=True)):
         if index == own_view or points_m.shape[0] == 0:
             continue
@@ -57,15 +52,15 @@ def seen_through(
         readings = depth[depth > 0.0]
         if readings.size == 0:
             continue
-        reach_m = float(np.percentile(readings, _REACH_PERCENTILE))
+        reach_m = float(np.percentile(readings, reach_percentile))
         rows_max, cols_max = depth.shape[0] - 1, depth.shape[1] - 1
         ahead = local[:, 2] > 0.0
         pixels = np.rint(project_points(local[ahead], view.camera.depth)).astype(np.int64)
         inside = (
-            (pixels[:, 0] >= _WINDOW_PX)
-            & (pixels[:, 0] <= cols_max - _WINDOW_PX)
-            & (pixels[:, 1] >= _WINDOW_PX)
-            & (pixels[:, 1] <= rows_max - _WINDOW_PX)
+            (pixels[:, 0] >= window_px)
+            & (pixels[:, 0] <= cols_max - window_px)
+            & (pixels[:, 1] >= window_px)
+            & (pixels[:, 1] <= rows_max - window_px)
         )
         candidates = np.flatnonzero(ahead)[inside]
         cols = pixels[inside, 0][:, None, None] + offsets[None, None, :]

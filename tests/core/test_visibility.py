@@ -50,7 +50,8 @@ def test_a_point_the_other_view_sees_past_is_seen_through_and_one_it_sees_or_can
         ]
     )
 
-    through = seen_through(points, own_view=0, views=views, world_from_view=poses, margin_m=0.1)
+    settings = {"margin_m": 0.1, "window_px": 1, "reach_percentile": 95.0}
+    through = seen_through(points, own_view=0, views=views, world_from_view=poses, **settings)
 
     assert through.tolist() == [True, False, False, True, False]
-    assert not seen_through(points, own_view=1, views=views, world_from_view=poses, margin_m=0.1)[:3].any()
+    assert not seen_through(points, own_view=1, views=views, world_from_view=poses, **settings)[:3].any()
