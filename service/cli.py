@@ -153,8 +153,9 @@ class _WorkerProcess:
             self._process.kill()
 
 
-def _exit_on_signal(signal_number: int, _frame: FrameType | None) -> None:
-    raise SystemExit(128 + signal_number)
+def _stop_on_signal(_signal_number: int, _frame: FrameType | None) -> None:
+    """A stop asked for (SIGTERM from systemd or docker stop) is an orderly end: exit 0, as after Ctrl-C."""
+    raise SystemExit(0)
 
 
 @app.command()
@@ -178,7 +179,7 @@ def up(host: HostOpt = "127.0.0.1", port: PortOpt = 8000, data: DataOpt = None) 
     worker_process = _WorkerProcess(environment)
     # uvicorn shuts down on SIGTERM, then raises the signal again with the handler found before it: this
     # one turns it into SystemExit, so that the worker below is stopped rather than orphaned.
-    signal.signal(signal.SIGTERM, _exit_on_signal)
+    signal.signal(signal.SIGTERM, _stop_on_signal)
     try:
         _serve(context, host, port)
     finally:

@@ -4,6 +4,7 @@ its stdin closes when started with ``--until-stdin-closes`` (what ``canopy up`` 
 from __future__ import annotations
 
 import logging
+import os
 import signal
 import sys
 import threading
@@ -20,7 +21,10 @@ ends, however it ends, the worker hands its job back and stops instead of runnin
 
 
 def _stop_when_stdin_closes(worker: Worker) -> None:
-    sys.stdin.buffer.read()
+    # The file descriptor, not sys.stdin: a daemon thread blocked in a buffered read holds the buffer's
+    # lock, and the interpreter's shutdown then dies on it ("Fatal Python error: _enter_buffered_busy").
+    while os.read(sys.stdin.fileno(), 4096):
+        pass
     worker.stop()
 
 
