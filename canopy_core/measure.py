@@ -57,6 +57,7 @@ __all__ = [
     "ball_evidence",
     "balls_and_frame",
     "config_for",
+    "depth_footprint_m",
     "filtered_cloud",
     "measure",
 ]
@@ -374,6 +375,10 @@ def _modes(
         foliage_mask(colors[mask], min_index=config.metrics.foliage_min_exgr)
         for colors, mask in zip(roi_colors, tree_masks, strict=True)
     ]
+    footprints = [
+        depth_footprint_m(view_points, world_from_view=pose, focal_px=view.camera.depth.fx)
+        for view_points, pose, view in zip(points, world_from_view, capture.views, strict=True)
+    ]
     merged, merged_foliage = np.concatenate(points), np.concatenate(foliage)
     crown = crown_mask(
         merged,
@@ -399,9 +404,15 @@ def _modes(
     )
     crowns = np.split(crown, np.cumsum([view_points.shape[0] for view_points in points])[:-1])
     modes: dict[str, CanopyMetrics] = {}
-    for view, view_points, leafy, view_crown in zip(capture.views, points, foliage, crowns, strict=True):
-        modes[view.name] = _metrics_or_fail(view_points, leafy, view_crown, trunk_xy, config, view=view.name)
-    modes[MERGED] = _metrics_or_fail(merged, merged_foliage, crown, trunk_xy, config, view=None)
+    for view, view_points, leafy, view_crown, footprint in zip(
+        capture.views, points, foliage, crowns, footprints, strict=True
+    ):
+        modes[view.name] = _metrics_or_fail(
+            view_points, leafy, view_crown, footprint, trunk_xy, config, view=view.name
+        )
+    modes[MERGED] = _metrics_or_fail(
+        merged, merged_foliage, crown, np.concatenate(footprints), trunk_xy, config, view=None
+    )
     return modes
 
 
@@ -580,10 +591,18 @@ def _tree_masks(
     return masks
 
 
+def depth_footprint_m(points_m: np.ndarray, *, world_from_view: np.ndarray, focal_px: float) -> np.ndarray:
+    """The depth pixel pitch at each of a view's points (world frame): its depth along that view's optical
+    axis over the focal length, the size a pixel covers there."""
+    depth_m = apply(np.linalg.inv(world_from_view), points_m)[:, 2]
+    return depth_m / focal_px
+
+
 def _metrics_or_fail(
     points: np.ndarray,
     foliage: np.ndarray,
     crown: np.ndarray,
+    footprint: np.ndarray,
     trunk_xy: np.ndarray,
     config: MeasureConfig,
     *,
@@ -597,7 +616,12 @@ def _metrics_or_fail(
         )
     try:
         return canopy_metrics(
-            points, trunk_xy_m=trunk_xy, foliage=foliage, crown=crown, config=config.metrics
+            points,
+            trunk_xy_m=trunk_xy,
+            foliage=foliage,
+            crown=crown,
+            pixel_footprint_m=footprint,
+            config=config.metrics,
         )
     except MeasurementError as error:
         error.view = error.view or view

@@ -39,6 +39,7 @@ __all__ = [
     "max_horizontal_distance",
     "projected_area",
     "voxel_volume",
+    "widest_pair",
 ]
 
 _TOP_BATCH = 256
@@ -99,16 +100,30 @@ def max_horizontal_distance(
 ) -> float:
     """Maximum canopy width W: the largest distance between two points projected on the ground (eq. 6).
 
+    See :func:`widest_pair` for the support asked of the two points; no points have no width.
+    """
+    if points_m.shape[0] == 0:
+        return 0.0
+    first, second = widest_pair(points_m, support_radius_m=support_radius_m, support_points=support_points)
+    return float(np.linalg.norm(points_m[first, :2] - points_m[second, :2]))
+
+
+def widest_pair(
+    points_m: np.ndarray, *, support_radius_m: float | None = None, support_points: int = 0
+) -> tuple[int, int]:
+    """Indices of the two points farthest apart projected on the ground: the ends of W (eq. 6).
+
     Exact: the two farthest points of a set are vertices of its convex hull, so only hull vertices
     (tens to hundreds) are compared pairwise instead of all N² pairs. With ``support_radius_m``, as for the
     top (:func:`canopy_height`), a point counts only with ``support_points`` other points within that
     radius: hull vertices without them are dropped and the hull taken again, so no stray point (a
-    flying pixel, a speck of wire) sets W.
+    flying pixel, a speck of wire) sets W. ``points_m`` holds at least one point; one point is its own
+    pair.
     """
     xy = points_m[:, :2]
+    alive = np.ones(points_m.shape[0], dtype=bool)
     if support_radius_m is not None and points_m.shape[0] > support_points:
         neighbours = cKDTree(points_m)
-        alive = np.ones(points_m.shape[0], dtype=bool)
         while True:
             hull = _hull_vertices(xy[alive])
             indices = np.flatnonzero(alive)[hull]
@@ -119,12 +134,13 @@ def max_horizontal_distance(
             if stray.size == 0 or np.count_nonzero(alive) - stray.size < 3:
                 break
             alive[stray] = False
-        xy = xy[alive]
-    if xy.shape[0] < 3:
-        return float(np.linalg.norm(xy[0] - xy[-1])) if xy.shape[0] else 0.0
-    vertices = xy[_hull_vertices(xy)]
-    differences = vertices[:, None, :] - vertices[None, :, :]
-    return float(np.sqrt((differences**2).sum(axis=2).max()))
+    kept = np.flatnonzero(alive)
+    if kept.size < 3:
+        return int(kept[0]), int(kept[-1])
+    vertices = kept[_hull_vertices(xy[kept])]
+    differences = xy[vertices][:, None, :] - xy[vertices][None, :, :]
+    first, second = np.unravel_index(np.argmax((differences**2).sum(axis=2)), differences.shape[:2])
+    return int(vertices[first]), int(vertices[second])
 
 
 def _hull_vertices(xy: np.ndarray) -> np.ndarray:
@@ -406,6 +422,7 @@ def canopy_metrics(
     trunk_xy_m: np.ndarray,
     foliage: np.ndarray | None = None,
     crown: np.ndarray | None = None,
+    pixel_footprint_m: np.ndarray | None = None,
     config: MetricsConfig,
 ) -> CanopyMetrics:
     """All metrics of one tree cloud in the world frame; ``foliage`` marks the points coloured as leaves.
@@ -416,6 +433,11 @@ def canopy_metrics(
     ``thickness_m`` and ``crown_base_m`` are the geometric estimates (the more accurate on trees with a
     clear trunk); ``thickness_kde_m`` and ``crown_base_kde_m`` follow the paper's eqs. 7-8. ``points``
     counts the points given.
+
+    ``pixel_footprint_m`` is each point's depth pixel pitch where it lies (its depth over the focal length
+    of the camera that saw it). The last pixel that reads the crown at either end of W lies on average
+    half a pitch inside the crown's true outline, so W grows by ``config.width_edge_px`` pitches at each
+    end; without footprints, W is the points' own extent.
     """
     candidates = crown_candidates(
         points_m, trunk_xy_m, foliage=foliage, min_radius_m=config.crown_base_min_radius_m
@@ -448,11 +470,15 @@ def canopy_metrics(
     )
     upper = tree_points[tree_points[:, 2] >= base_geometric]
     along, across = crown_diameters(upper)
+    first, second = widest_pair(
+        tree_points, support_radius_m=config.support_radius_m, support_points=config.top_support_points
+    )
+    width = float(np.linalg.norm(tree_points[first, :2] - tree_points[second, :2]))
+    if pixel_footprint_m is not None:
+        width += config.width_edge_px * float(pixel_footprint_m[kept][[first, second]].sum())
     return CanopyMetrics(
         height_m=height,
-        width_m=max_horizontal_distance(
-            tree_points, support_radius_m=config.support_radius_m, support_points=config.top_support_points
-        ),
+        width_m=width,
         thickness_m=height - base_geometric,
         crown_base_m=base_geometric,
         thickness_kde_m=height - base_kde,

@@ -66,6 +66,35 @@ def test_width_ignores_height() -> None:
     assert max_horizontal_distance(points) == pytest.approx(np.sqrt(2.0))
 
 
+def _sampled_hedge(phase_m: float, *, pitch_m: float, length_m: float) -> np.ndarray:
+    """A crown 1 m tall and length_m long along x, as a camera with pixels pitch_m apart reads it: the
+    last sample inside each end lies anywhere up to a pitch short of it."""
+    x = np.arange(phase_m - length_m / 2, length_m / 2, pitch_m)
+    z = np.arange(1.0, 2.0, pitch_m)
+    grid = np.stack(np.meshgrid(x, [0.0], z, indexing="ij"), axis=-1).reshape(-1, 3)
+    return grid[np.abs(grid[:, 0]) <= length_m / 2]
+
+
+def test_width_adds_half_a_pixel_at_each_end_so_it_is_unbiased_over_sampling_phases() -> None:
+    pitch, length = 0.01, 1.6
+    plain, corrected = [], []
+    for phase in np.random.default_rng(9).uniform(0.0, pitch, size=60):
+        hedge = _sampled_hedge(phase, pitch_m=pitch, length_m=length)
+        everything = np.ones(hedge.shape[0], dtype=bool)
+        for widths, footprint in ((plain, None), (corrected, np.full(hedge.shape[0], pitch))):
+            metrics = canopy_metrics(
+                hedge,
+                trunk_xy_m=np.zeros(2),
+                crown=everything,
+                pixel_footprint_m=footprint,
+                config=MetricsConfig(),
+            )
+            widths.append(metrics.width_m)
+    assert np.mean(plain) == pytest.approx(length - pitch, abs=0.1 * pitch)  # half a pitch short at each end
+    assert np.mean(corrected) == pytest.approx(length, abs=0.1 * pitch)
+    assert np.max(corrected) <= length + pitch  # never more than the half pitch beyond at either end
+
+
 def test_kde_crown_base_finds_where_the_crown_starts_above_a_sparse_trunk() -> None:
     tree = _tree(np.random.default_rng(3))
     base = crown_base_kde(tree[:, 2], height_m=3.0, bandwidth_m=0.04, threshold=0.25)
