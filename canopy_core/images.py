@@ -1,20 +1,20 @@
 """Decoding and checking the image files of a capture: 16-bit depth PNGs and 8-bit RGB colour images.
 
-Works on bytes so that the service can check an upload with exactly the checks the offline loader makes.
-Pillow reads the header first, so an oversized image (a decompression bomb) is refused before decoding.
+Works on bytes or a file, so that the service checks an upload (streamed to a file) with exactly the checks
+the offline loader makes. Pillow reads the header first, so an oversized image (a decompression bomb) is refused before decoding.
 """
 
 from __future__ import annotations
 
 import io
-from pathlib import PurePosixPath
+from pathlib import Path, PurePosixPath
 
 import numpy as np
 from PIL import Image, UnidentifiedImageError
 
 from canopy_core.errors import CaptureError
 
-__all__ = ["DEFAULT_MAX_PIXELS", "decode_color", "decode_depth"]
+__all__ = ["DEFAULT_MAX_PIXELS", "ImageSource", "decode_color", "decode_depth", "open_color", "open_depth"]
 
 DEFAULT_MAX_PIXELS = 40_000_000
 """Largest image accepted, in pixels: well above a 4K colour frame, far below a decompression bomb."""
@@ -32,13 +32,22 @@ _FORMAT_OF_SUFFIX = {".png": "PNG", ".jpg": "JPEG", ".jpeg": "JPEG"}
 refused, so what a capture's files are called is what they hold."""
 
 
-def _open(data: bytes, *, file: str, view: str | None, max_pixels: int, stored: bool = False) -> Image.Image:
+ImageSource = bytes | Path
+"""An image's bytes, or the file holding them (read as Pillow needs it: a large upload is never in memory
+whole)."""
+
+
+def _open(
+    source: ImageSource, *, file: str, view: str | None, max_pixels: int, stored: bool = False
+) -> Image.Image:
     """Open an image and check its size from the header, before any pixel is decoded, and its format
-    against its name (unless ``stored``: accepted before that rule)."""
-    if not data:
+    against its name (unless ``stored``: accepted before that rule); then decode it, so a corrupt or
+    truncated file is told here."""
+    size = len(source) if isinstance(source, bytes) else source.stat().st_size
+    if size == 0:
         raise CaptureError("the file is empty", file=file, view=view)
     try:
-        image = Image.open(io.BytesIO(data))
+        image = Image.open(io.BytesIO(source) if isinstance(source, bytes) else source)
     except UnidentifiedImageError as exc:
         raise CaptureError("not a readable PNG or JPEG image", file=file, view=view) from exc
     except OSError as exc:
@@ -66,8 +75,39 @@ def _open(data: bytes, *, file: str, view: str | None, max_pixels: int, stored: 
     return image
 
 
+def open_depth(
+    source: ImageSource,
+    *,
+    file: str,
+    view: str | None = None,
+    expected_size: tuple[int, int] | None = None,
+    max_pixels: int = DEFAULT_MAX_PIXELS,
+) -> Image.Image:
+    """Open and check a depth image: every rule of :func:`decode_depth`, without making an array of it.
+
+    Raises
+    ------
+    CaptureError
+        Not a PNG, corrupt, not 16-bit single channel, wrong size, or no valid depth pixel.
+    """
+    image = _open(source, file=file, view=view, max_pixels=max_pixels)
+    if image.format != "PNG":
+        raise CaptureError("depth must be a lossless PNG, not JPEG", file=file, view=view)
+    if image.mode not in _DEPTH_MODES:
+        raise CaptureError(
+            f"depth must be 16-bit single-channel; this PNG is mode {image.mode} "
+            f"({len(image.getbands())} channel(s))",
+            file=file,
+            view=view,
+        )
+    _check_size(image, expected_size, file=file, view=view, what="depth_intrinsics")
+    if image.getextrema()[1] == 0:
+        raise CaptureError("the depth image has no valid pixel (all zero)", file=file, view=view)
+    return image
+
+
 def decode_depth(
-    data: bytes,
+    source: ImageSource,
     *,
     file: str,
     view: str | None = None,
@@ -78,8 +118,8 @@ def decode_depth(
 
     Parameters
     ----------
-    data
-        The file's bytes.
+    source
+        The file's bytes, or its path.
     file, view
         Where the bytes came from, for error messages.
     expected_size
@@ -90,27 +130,31 @@ def decode_depth(
     Raises
     ------
     CaptureError
-        Not a PNG, corrupt, not 16-bit single channel, wrong size, or no valid depth pixel.
+        As :func:`open_depth`.
     """
-    image = _open(data, file=file, view=view, max_pixels=max_pixels)
-    if image.format != "PNG":
-        raise CaptureError("depth must be a lossless PNG, not JPEG", file=file, view=view)
-    if image.mode not in _DEPTH_MODES:
-        raise CaptureError(
-            f"depth must be 16-bit single-channel; this PNG is mode {image.mode} "
-            f"({len(image.getbands())} channel(s))",
-            file=file,
-            view=view,
-        )
-    depth = np.asarray(image, dtype=np.uint16)
-    _check_size(depth, expected_size, file=file, view=view, what="depth_intrinsics")
-    if not depth.any():
-        raise CaptureError("the depth image has no valid pixel (all zero)", file=file, view=view)
-    return depth
+    image = open_depth(source, file=file, view=view, expected_size=expected_size, max_pixels=max_pixels)
+    return np.asarray(image, dtype=np.uint16)
+
+
+def open_color(
+    source: ImageSource,
+    *,
+    file: str,
+    view: str | None = None,
+    expected_size: tuple[int, int] | None = None,
+    max_pixels: int = DEFAULT_MAX_PIXELS,
+    stored: bool = False,
+) -> Image.Image:
+    """Open and check a colour image: every rule of :func:`decode_color`, without making an array of it."""
+    image = _open(source, file=file, view=view, max_pixels=max_pixels, stored=stored)
+    if image.mode not in _COLOR_MODES:
+        raise CaptureError(f"colour must be 8-bit RGB; this image is mode {image.mode}", file=file, view=view)
+    _check_size(image, expected_size, file=file, view=view, what="intrinsics")
+    return image
 
 
 def decode_color(
-    data: bytes,
+    source: ImageSource,
     *,
     file: str,
     view: str | None = None,
@@ -118,30 +162,28 @@ def decode_color(
     max_pixels: int = DEFAULT_MAX_PIXELS,
     stored: bool = False,
 ) -> np.ndarray:
-    """Decode a colour PNG or JPEG into a ``(height, width, 3)`` uint8 RGB array.
+    """Decode a colour PNG or JPEG (bytes or path) into a ``(height, width, 3)`` uint8 RGB array.
 
     ``expected_size`` is ``(width, height)`` from camera.json (colour intrinsics, or the depth size when the
     colour is registered to the depth image). Alpha is dropped; palette images are expanded; 48-bit RGB
     PNGs are reduced to 8 bits by Pillow; grey images are refused because ball detection needs colour.
     ``stored``: accepted earlier, when a PNG under a .jpg name still passed.
     """
-    image = _open(data, file=file, view=view, max_pixels=max_pixels, stored=stored)
-    if image.mode not in _COLOR_MODES:
-        raise CaptureError(f"colour must be 8-bit RGB; this image is mode {image.mode}", file=file, view=view)
-    rgb = np.asarray(image.convert("RGB") if image.mode != "RGB" else image, dtype=np.uint8)
-    _check_size(rgb, expected_size, file=file, view=view, what="intrinsics")
-    return rgb
+    image = open_color(
+        source, file=file, view=view, expected_size=expected_size, max_pixels=max_pixels, stored=stored
+    )
+    return np.asarray(image.convert("RGB") if image.mode != "RGB" else image, dtype=np.uint8)
 
 
 def _check_size(
-    pixels: np.ndarray, expected_size: tuple[int, int] | None, *, file: str, view: str | None, what: str
+    image: Image.Image, expected_size: tuple[int, int] | None, *, file: str, view: str | None, what: str
 ) -> None:
     if expected_size is None:
         return
     width, height = expected_size
-    if pixels.shape[1] != width or pixels.shape[0] != height:
+    if image.size != (width, height):
         raise CaptureError(
-            f"image is {pixels.shape[1]}x{pixels.shape[0]} but camera.json {what} says {width}x{height}",
+            f"image is {image.width}x{image.height} but camera.json {what} says {width}x{height}",
             file=file,
             view=view,
         )

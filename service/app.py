@@ -4,15 +4,21 @@ in a field office without internet."""
 
 from __future__ import annotations
 
+import asyncio
+import logging
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
 from typing import Any
 
 from fastapi import Depends, FastAPI
+from fastapi.concurrency import run_in_threadpool
 from fastapi.openapi.utils import get_openapi
 from fastapi_offline import FastAPIOffline
 
 from canopy_core import __version__
 from canopy_core.capture import CaptureManifest
 from service import health
+from service.admission import Admission
 from service.captures import endpoints as captures
 from service.context import Context
 from service.conventions import ConditionalGet, reject_unknown_query
@@ -24,10 +30,34 @@ from service.settings import Settings
 
 __all__ = ["create_app"]
 
+log = logging.getLogger("canopy.service")
+
+
+@asynccontextmanager
+async def _lifespan(app: FastAPI) -> AsyncIterator[None]:
+    """While the API runs: remove the temporary files of uploads that ended unfinished, at start-up and
+    every quarter of ``stale_upload_s`` after (see :meth:`BlobStore.remove_stale_incoming`)."""
+    context: Context = app.state.context
+    older_than_s = context.settings.stale_upload_s
+
+    async def sweep() -> None:
+        while True:
+            removed = await run_in_threadpool(context.store.remove_stale_incoming, older_than_s=older_than_s)
+            if removed:
+                log.warning("removed %d temporary file(s) of unfinished uploads", removed)
+            await asyncio.sleep(older_than_s / 4)
+
+    sweeping = asyncio.create_task(sweep())
+    try:
+        yield
+    finally:
+        sweeping.cancel()
+
 
 def create_app(context: Context | None = None) -> FastAPI:
     """The API over ``context`` (default: built from the ``CANOPY_*`` environment)."""
     app = FastAPIOffline(
+        lifespan=_lifespan,
         dependencies=[Depends(reject_unknown_query)],
         title="Canopy",
         version=__version__,
@@ -35,7 +65,8 @@ def create_app(context: Context | None = None) -> FastAPI:
         description="All lengths are metres. Every /v1 route and /readyz need `Authorization: Bearer <key>`. "
         "The whole contract (scopes, errors, ETags, idempotency, paging) is docs/api.md in the repository.",
     )
-    app.state.context = context or Context.from_settings(Settings())
+    app.state.context = context = context or Context.from_settings(Settings())
+    app.state.admission = Admission(context.settings)
     install_problem_handlers(app)
     app.add_middleware(ConditionalGet)
     for module in (health, captures, jobs, farm, keys):

@@ -25,5 +25,7 @@ class Context:
         settings.data_dir.mkdir(parents=True, exist_ok=True)
         settings.blob_dir.mkdir(parents=True, exist_ok=True)
         return cls(
-            settings=settings, database=Database(settings.sqlalchemy_url), store=BlobStore(settings.blob_dir)
+            settings=settings,
+            database=Database(settings.sqlalchemy_url),
+            store=BlobStore(settings.blob_dir, min_free_bytes=settings.min_free_bytes),
         )

@@ -8,12 +8,13 @@ from typing import Annotated
 from fastapi import Depends, Request
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
+from service.admission import Admission
 from service.context import Context
 from service.keys.service import authenticate, grants
 from service.models import ApiKey
 from service.problems import Forbidden, Unauthorized
 
-__all__ = ["AdminKey", "AnyKey", "CaptureKey", "CaptureOrReadKey", "ContextDep", "ReadKey"]
+__all__ = ["AdminKey", "AdmissionDep", "AnyKey", "CaptureKey", "CaptureOrReadKey", "ContextDep", "ReadKey"]
 
 
 def get_context(request: Request) -> Context:
@@ -23,6 +24,15 @@ def get_context(request: Request) -> Context:
 
 
 ContextDep = Annotated[Context, Depends(get_context)]
+
+
+def get_admission(request: Request) -> Admission:
+    """The API process's upload slots and image-check turns."""
+    admission: Admission = request.app.state.admission
+    return admission
+
+
+AdmissionDep = Annotated[Admission, Depends(get_admission)]
 
 
 _BEARER = HTTPBearer(

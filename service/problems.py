@@ -16,6 +16,7 @@ from sqlalchemy.exc import OperationalError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from canopy_core.errors import CanopyError
+from service.storage import OutOfSpace
 
 __all__ = [
     "COMPONENT_REF",
@@ -24,10 +25,14 @@ __all__ = [
     "BadRequest",
     "Conflict",
     "Forbidden",
+    "InsufficientStorage",
     "InvalidContent",
     "NotFound",
     "PayloadTooLarge",
     "Problem",
+    "RequestTimeout",
+    "ServiceBusy",
+    "TooManyRequests",
     "Unauthorized",
     "component_schemas",
     "install_problem_handlers",
@@ -78,6 +83,16 @@ class NotFound(ApiError):
     status, title, code = 404, "Not found", "not_found"
 
 
+class RequestTimeout(ApiError):
+    status, title, code = 408, "Request timeout", "body_timeout"
+
+    def __init__(self, detail: str, **members: Any) -> None:
+        super().__init__(detail, **members)
+        self.headers = {
+            "Connection": "close"
+        }  # the rest of the body may still come: never read it as a request
+
+
 class Conflict(ApiError):
     status, title, code = 409, "Conflict", "conflict"
 
@@ -88,6 +103,26 @@ class PayloadTooLarge(ApiError):
 
 class InvalidContent(ApiError):
     status, title, code = 422, "Invalid content", "invalid_content"
+
+
+class _ComeBackLater(ApiError):
+    """An error the same request may not meet later: it says when to try again (``Retry-After``)."""
+
+    def __init__(self, detail: str, *, retry_after_s: int, code: str | None = None, **members: Any) -> None:
+        super().__init__(detail, code=code, **members)
+        self.headers = {"Retry-After": str(retry_after_s)}
+
+
+class TooManyRequests(_ComeBackLater):
+    status, title, code = 429, "Too many requests", "too_many_uploads"
+
+
+class ServiceBusy(_ComeBackLater):
+    status, title, code = 503, "Service busy", "service_busy"
+
+
+class InsufficientStorage(_ComeBackLater):
+    status, title, code = 507, "Insufficient storage", "out_of_space"
 
 
 class Problem(BaseModel):
@@ -189,7 +224,12 @@ def _http_error(_request: Request, exc: Exception) -> JSONResponse:
     )
 
 
-def _database_unavailable(_request: Request, exc: Exception) -> JSONResponse:
+def _database_unavailable(request: Request, exc: Exception) -> JSONResponse:
+    assert isinstance(exc, OperationalError)
+    if "database or disk is full" in str(exc.orig):  # SQLite's words for ENOSPC
+        store = request.app.state.context.store
+        full = OutOfSpace.measured(store.root, store.min_free_bytes, reason="the database could not grow")
+        return _out_of_space(request, full)
     log.warning("database unavailable: %s", exc)
     return problem(
         503,
@@ -200,14 +240,40 @@ def _database_unavailable(_request: Request, exc: Exception) -> JSONResponse:
     )
 
 
+OUT_OF_SPACE_RETRY_S = 60
+"""When to try again after a full disk: an operator has to free space, which takes minutes, not seconds."""
+
+
+def _out_of_space(request: Request, exc: Exception) -> JSONResponse:
+    assert isinstance(exc, OutOfSpace)
+    log.warning("refused a write: %s", exc)
+    refusal = InsufficientStorage(
+        f"the server's data disk is full ({exc.free_bytes} bytes free, {exc.floor_bytes} kept free); "
+        "nothing was stored: try again once space is freed",
+        retry_after_s=OUT_OF_SPACE_RETRY_S,
+        free_bytes=exc.free_bytes,
+        min_free_bytes=exc.floor_bytes,
+    )
+    return _api_error(request, refusal)
+
+
 def _unexpected(_request: Request, exc: Exception) -> JSONResponse:
     log.error("unexpected error", exc_info=exc)
-    return problem(500, "Internal error", "an unexpected error occurred; it is logged", code="internal_error")
+    # The connection may hold the rest of a request the server gave up on: close it rather than read
+    # that as the next request, and say so, so a client does not reuse it and meet a reset.
+    return problem(
+        500,
+        "Internal error",
+        "an unexpected error occurred; it is logged",
+        code="internal_error",
+        headers={"Connection": "close"},
+    )
 
 
 def install_problem_handlers(app: FastAPI) -> None:
     """Render every error the app can raise as problem+json."""
     app.add_exception_handler(OperationalError, _database_unavailable)
+    app.add_exception_handler(OutOfSpace, _out_of_space)
     app.add_exception_handler(Exception, _unexpected)
     app.add_exception_handler(ApiError, _api_error)
     app.add_exception_handler(CanopyError, _canopy_error)

@@ -25,8 +25,48 @@ class Settings(BaseSettings):
 
     data_dir: Path = Field(Path("canopy-data"), description="Folder of the SQLite file and the blob store.")
     database_url: str | None = Field(None, description="SQLAlchemy URL; default: SQLite in data_dir.")
-    max_upload_bytes: int = Field(128 * 1024 * 1024, gt=0, description="Largest accepted file body.")
+    max_upload_bytes: int = Field(128 * 1024 * 1024, gt=0, description="Largest accepted image body, bytes.")
+    max_json_bytes: int = Field(
+        1024 * 1024, gt=0, description="Largest accepted capture.json or camera.json body, bytes."
+    )
     max_image_pixels: int = Field(DEFAULT_MAX_PIXELS, gt=0, description="Largest accepted image.")
+    upload_idle_timeout_s: float = Field(
+        30.0,
+        gt=0,
+        description="A request body of which no byte arrives for this long is given up (408): a client gone "
+        "out of range mid-upload leaves its connection open, and would hold its upload slot.",
+    )
+    max_concurrent_uploads: int = Field(
+        16,
+        gt=0,
+        description="File bodies received at once (each streams to disk); one more gets 503 with "
+        "Retry-After.",
+    )
+    max_uploads_per_key: int = Field(
+        4,
+        gt=0,
+        description="File bodies received at once for one API key; one more gets 429 with Retry-After, so a "
+        "few clients cannot take every slot.",
+    )
+    max_concurrent_image_checks: int = Field(
+        2,
+        gt=0,
+        description="Uploaded images decoded at once to check them; the others wait. Each holds its pixels "
+        "(up to 4 bytes per pixel of max_image_pixels) while it is checked: this bounds the API's memory.",
+    )
+    min_free_bytes: int = Field(
+        256 * 1024 * 1024,
+        ge=0,
+        description="Free space kept on the data disk, bytes: below it uploads and new captures get 507 with "
+        "Retry-After, and workers claim no job, so the database always has room to commit.",
+    )
+    stale_upload_s: float = Field(
+        600.0,
+        gt=0,
+        description="A temporary file of an upload untouched this long is from an upload that ended "
+        "unfinished (a killed server, a dropped connection) and is removed, at start-up and every "
+        "stale_upload_s / 4 seconds after.",
+    )
     job_lease_s: float = Field(30.0, gt=0, description="A worker silent this long loses its job.")
     job_max_attempts: int = Field(3, ge=1, description="Attempts before a crashing job stays failed.")
     job_timeout_s: float = Field(600.0, gt=0, description="A measurement running longer is stopped.")

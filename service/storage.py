@@ -1,19 +1,29 @@
 """Durable, content-addressed storage of uploaded files and fused clouds, beside the database.
 
-A blob is named by its SHA-256 and written to a temporary file, flushed to disk, renamed into place and its
-folder flushed, so it is either whole or absent after a crash. The database records a blob's digest only
-after the blob is durable; a crash between the two leaves an unreferenced blob and never a record without
-its bytes.
+A blob is written to a temporary file (``.incoming-*`` in the store's folder) while its SHA-256 is taken,
+flushed to disk, renamed into place under its digest and its folder flushed, so it is either whole or
+absent after a crash. The database records a blob's digest only after the blob is durable; a crash between
+the two leaves an unreferenced blob and never a record without its bytes. A crash while a file arrives
+leaves its temporary file, which :meth:`BlobStore.remove_stale_incoming` clears.
 """
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import hashlib
 import os
+import shutil
 import tempfile
+import time
+from collections.abc import Iterator
+from contextlib import AbstractContextManager, contextmanager
 from pathlib import Path
+from types import TracebackType
 
-__all__ = ["BlobStore", "sha256_hex"]
+__all__ = ["BlobStore", "IncomingBlob", "OutOfSpace", "sha256_hex"]
+
+_INCOMING_PREFIX = ".incoming-"
 
 
 def sha256_hex(data: bytes) -> str:
@@ -21,11 +31,110 @@ def sha256_hex(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()
 
 
-class BlobStore:
-    """Blobs under ``root/<first two hex digits>/<sha-256 hex>``; identical bytes are stored once."""
+class OutOfSpace(Exception):
+    """The data disk has less free space than must stay free, or none at all: nothing was stored."""
 
-    def __init__(self, root: Path) -> None:
+    def __init__(self, free_bytes: int, floor_bytes: int, *, reason: str = "") -> None:
+        super().__init__(
+            f"{reason + ': ' if reason else ''}{free_bytes} bytes free on the data disk; "
+            f"{floor_bytes} must stay free"
+        )
+        self.free_bytes = free_bytes
+        self.floor_bytes = floor_bytes
+
+    @classmethod
+    def measured(cls, root: Path, floor_bytes: int, *, reason: str) -> OutOfSpace:
+        """The error for a write the disk under ``root`` refused, with the space found there now."""
+        return cls(shutil.disk_usage(root).free, floor_bytes, reason=reason)
+
+
+@contextmanager
+def _full_disk_is_out_of_space(root: Path, floor_bytes: int) -> Iterator[None]:
+    """Turn the errors of a full disk or an exhausted quota into :class:`OutOfSpace`."""
+    try:
+        yield
+    except OSError as exc:
+        if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+            raise OutOfSpace.measured(root, floor_bytes, reason=exc.strerror or "disk full") from exc
+        raise
+
+
+class IncomingBlob:
+    """A blob being received: written to a temporary file as it comes, hashed on the way.
+
+    Use as a context manager: :meth:`commit` makes it durable under its digest; leaving the block without
+    committing (an error, a refused file) removes the temporary file.
+    """
+
+    def __init__(self, store: BlobStore) -> None:
+        self._store = store
+        with store.full_disk_is_out_of_space():
+            descriptor, name = tempfile.mkstemp(dir=store.root, prefix=_INCOMING_PREFIX)
+        self.path = Path(name)
+        self._stream = os.fdopen(descriptor, "wb")
+        self._hash = hashlib.sha256()
+        self.size_bytes = 0
+
+    def write(self, chunk: bytes) -> None:
+        """Append ``chunk`` to the blob."""
+        with self._store.full_disk_is_out_of_space():
+            self._stream.write(chunk)
+        self._hash.update(chunk)
+        self.size_bytes += len(chunk)
+
+    @property
+    def sha256(self) -> str:
+        """The digest of what was written so far."""
+        return self._hash.hexdigest()
+
+    def finish(self) -> None:
+        """Flush everything written to the disk, so the file can be read and checked."""
+        if not self._stream.closed:
+            with self._store.full_disk_is_out_of_space():
+                self._stream.flush()
+                os.fsync(self._stream.fileno())
+            self._stream.close()
+
+    def commit(self) -> str:
+        """Make the blob durable under its digest and return the digest; a no-op when the same bytes are
+        stored already (another upload of them renamed its file into place first)."""
+        self.finish()
+        sha256 = self.sha256
+        target = self._store.path(sha256)
+        if target.is_file() and target.stat().st_size == self.size_bytes:
+            # Another upload of the same bytes renamed them into place; make sure that rename is durable.
+            _fsync_directory(target.parent)
+            return sha256
+        with self._store.full_disk_is_out_of_space():
+            if not target.parent.is_dir():
+                target.parent.mkdir(parents=True, exist_ok=True)
+                _fsync_directory(self._store.root)
+            os.replace(self.path, target)
+            _fsync_directory(target.parent)
+        return sha256
+
+    def __enter__(self) -> IncomingBlob:
+        return self
+
+    def __exit__(
+        self, kind: type[BaseException] | None, error: BaseException | None, trace: TracebackType | None
+    ) -> None:
+        if not self._stream.closed:
+            with contextlib.suppress(OSError):  # the buffer's rest could not be written: it is discarded
+                self._stream.close()
+        self.path.unlink(missing_ok=True)
+
+
+class BlobStore:
+    """Blobs under ``root/<first two hex digits>/<sha-256 hex>``; identical bytes are stored once.
+
+    ``min_free_bytes``: what must stay free on the disk; :meth:`check_space` refuses a write below it, so
+    that the database beside the blobs always has room to commit.
+    """
+
+    def __init__(self, root: Path, *, min_free_bytes: int = 0) -> None:
         self.root = root
+        self.min_free_bytes = min_free_bytes
 
     def path(self, sha256: str) -> Path:
         """Where the blob with this digest lives (whether or not it exists)."""
@@ -33,33 +142,46 @@ class BlobStore:
             raise ValueError(f"not a SHA-256 hex digest: {sha256!r}")
         return self.root / sha256[:2] / sha256
 
+    def full_disk_is_out_of_space(self) -> AbstractContextManager[None]:
+        """A context in which a full disk's OSError becomes :class:`OutOfSpace`."""
+        return _full_disk_is_out_of_space(self.root, self.min_free_bytes)
+
+    def check_space(self, incoming_bytes: int = 0) -> None:
+        """Raise :class:`OutOfSpace` unless ``incoming_bytes`` more leave ``min_free_bytes`` free."""
+        free = shutil.disk_usage(self.root).free
+        if free - incoming_bytes < self.min_free_bytes:
+            raise OutOfSpace(free, self.min_free_bytes)
+
+    def receive(self) -> IncomingBlob:
+        """A new blob to write into (see :class:`IncomingBlob`)."""
+        return IncomingBlob(self)
+
     def put(self, data: bytes) -> str:
         """Store ``data`` durably and return its digest; a no-op when the same bytes are stored already."""
-        sha256 = sha256_hex(data)
-        target = self.path(sha256)
-        if target.is_file() and target.stat().st_size == len(data):
-            # Another upload of the same bytes renamed it into place; make sure that rename is durable.
-            _fsync_directory(target.parent)
-            return sha256
-        if not target.parent.is_dir():
-            target.parent.mkdir(parents=True, exist_ok=True)
-            _fsync_directory(self.root)
-        descriptor, temporary = tempfile.mkstemp(dir=target.parent, prefix=".incoming-")
-        try:
-            with os.fdopen(descriptor, "wb") as stream:
-                stream.write(data)
-                stream.flush()
-                os.fsync(stream.fileno())
-            os.replace(temporary, target)
-        except BaseException:
-            Path(temporary).unlink(missing_ok=True)
-            raise
-        _fsync_directory(target.parent)
-        return sha256
+        self.check_space(len(data))
+        with self.receive() as incoming:
+            incoming.write(data)
+            return incoming.commit()
 
     def read(self, sha256: str) -> bytes:
         """The bytes of a stored blob; raises FileNotFoundError when it is absent."""
         return self.path(sha256).read_bytes()
+
+    def remove_stale_incoming(self, *, older_than_s: float) -> int:
+        """Remove the temporary files of uploads that ended without finishing (a killed server, a dropped
+        connection mid-write) untouched for ``older_than_s``; a file still arriving is written to all the
+        time and stays. Also clears those of older versions, which kept them beside the blobs. Returns how
+        many were removed."""
+        deadline = time.time() - older_than_s
+        removed = 0
+        for stale in [*self.root.glob(f"{_INCOMING_PREFIX}*"), *self.root.glob(f"??/{_INCOMING_PREFIX}*")]:
+            try:
+                if stale.stat().st_mtime < deadline:
+                    stale.unlink()
+                    removed += 1
+            except FileNotFoundError:  # finished or removed meanwhile
+                continue
+        return removed
 
 
 def _fsync_directory(path: Path) -> None:

@@ -4,7 +4,8 @@ measurement becomes an ordinary, retried failure of the job rather than the deat
 The child reads the capture's files from the blob store, measures, stores the fused cloud and sends its
 messages to the worker through a pipe: ``("progress", stage, fraction)`` while it runs, then one of
 ``("ok", document, cloud_sha256, cloud_points)``, ``("error", error_dict)`` for a failure the measurement
-core explains (permanent), or ``("crash", text)`` for an unexpected exception (retried).
+core explains (permanent), ``("no_space", text)`` when the data disk had no room for the cloud (the job is
+handed back, not failed), or ``("crash", text)`` for an unexpected exception (retried).
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ from canopy_core.capture import read_capture, stored_manifest
 from canopy_core.cloud_io import ply_bytes
 from canopy_core.errors import CanopyError
 from canopy_core.measure import measure
-from service.storage import BlobStore
+from service.storage import BlobStore, OutOfSpace
 
 __all__ = ["MeasurementSpec", "exit_with_worker", "run_measurement"]
 
@@ -37,6 +38,7 @@ class MeasurementSpec:
     manifest: dict[str, Any]
     files: dict[str, str]
     blob_dir: Path
+    min_free_bytes: int
     overrides: dict[str, Any] | None
     max_pixels: int
 
@@ -65,7 +67,7 @@ def run_measurement(connection: Connection, lifeline: Connection, spec: Measurem
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
     exit_with_worker(lifeline)
-    store = BlobStore(spec.blob_dir)
+    store = BlobStore(spec.blob_dir, min_free_bytes=spec.min_free_bytes)
 
     def read(path: str) -> bytes | None:
         digest = spec.files.get(path)
@@ -81,6 +83,8 @@ def run_measurement(connection: Connection, lifeline: Connection, spec: Measurem
         cloud_sha256 = store.put(ply_bytes(result.cloud_points_m, result.cloud_colors_rgb))
         document = json.loads(result.to_json())
         connection.send(("ok", document, cloud_sha256, int(result.cloud_points_m.shape[0])))
+    except OutOfSpace as exc:
+        connection.send(("no_space", str(exc)))
     except CanopyError as exc:
         connection.send(("error", exc.to_dict()))
     except Exception:

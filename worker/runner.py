@@ -25,6 +25,7 @@ from service.captures.service import get_capture
 from service.context import Context
 from service.jobs.queue import Lease, claim, complete, fail, release, renew
 from service.models import CaptureFile
+from service.storage import OutOfSpace
 from worker.child import MeasurementSpec, run_measurement
 
 __all__ = ["Worker"]
@@ -32,7 +33,8 @@ __all__ = ["Worker"]
 log = logging.getLogger("canopy.worker")
 
 
-_RECONNECT_S = 5.0
+_WAIT_S = 5.0
+"""Pause before trying again when the database is unreachable or the data disk is full."""
 _RECORD_TRIES = 3
 
 _OUTCOME_LOG = {
@@ -41,6 +43,7 @@ _OUTCOME_LOG = {
     "crash": "crashed (retried while attempts remain)",
     "timeout": "timed out (retried while attempts remain)",
     "stopped": "handed back to the queue (worker stopping)",
+    "no_space": "handed back to the queue (the data disk is full)",
     "lost": "abandoned (lease lost)",
 }
 
@@ -85,15 +88,27 @@ class Worker:
             except OperationalError as exc:
                 # The database went away (restart, network): a held job's lease runs out and it is claimed
                 # again, so waiting and trying again loses nothing.
-                log.warning("database unavailable (%s); trying again in %.0f s", exc.orig, _RECONNECT_S)
-                self._stopping.wait(_RECONNECT_S)
+                log.warning("database unavailable (%s); trying again in %.0f s", exc.orig, _WAIT_S)
+                self._stopping.wait(_WAIT_S)
+                continue
+            except OutOfSpace as full:
+                # No job is claimed that could not store its cloud; the queue waits for the disk.
+                log.warning("claiming no job: %s; trying again in %.0f s", full, _WAIT_S)
+                self._stopping.wait(_WAIT_S)
                 continue
             if not ran:
                 self._stopping.wait(self.context.settings.worker_poll_s)
 
     def run_one(self) -> bool:
-        """Claim and run one job; False when none was ready."""
+        """Claim and run one job; False when none was ready.
+
+        Raises
+        ------
+        OutOfSpace
+            The data disk has less free space than ``min_free_bytes``: no job is claimed.
+        """
         settings = self.context.settings
+        self.context.store.check_space()
         with self.context.database.writing() as session:
             lease = claim(
                 session,
@@ -110,6 +125,9 @@ class Worker:
         log.info(
             "job %d: %s after %.2f s", lease.job_id, _OUTCOME_LOG[outcome.kind], time.monotonic() - started
         )
+        if outcome.kind == "no_space":
+            log.warning("job %d: %s", lease.job_id, *outcome.message)
+            self._stopping.wait(_WAIT_S)
         return True
 
     def _spec(self, lease: Lease) -> MeasurementSpec:
@@ -126,6 +144,7 @@ class Worker:
                 manifest=capture.manifest,
                 files=files,
                 blob_dir=self.context.store.root,
+                min_free_bytes=self.context.store.min_free_bytes,
                 overrides=lease.overrides,
                 max_pixels=self.context.settings.max_image_pixels,
             )
@@ -207,7 +226,7 @@ class Worker:
             except OperationalError:
                 if attempt == _RECORD_TRIES - 1:
                     raise
-                self._stopping.wait(_RECONNECT_S)
+                self._stopping.wait(_WAIT_S)
         if not held:
             log.warning("job %d: lease lost to another worker; its outcome here is dropped", lease.job_id)
 
@@ -225,7 +244,7 @@ class Worker:
             code = "measurement_crashed" if outcome.kind == "crash" else "measurement_timeout"
             error = {"code": code, "message": outcome.message[0]}
             return fail(session, lease, error=error, retry=True, max_attempts=max_attempts)
-        if outcome.kind == "stopped":
+        if outcome.kind in ("stopped", "no_space"):
             return release(session, lease)
         return False
 

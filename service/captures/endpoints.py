@@ -8,7 +8,7 @@ from fastapi import APIRouter, Header, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from sqlalchemy.orm import Session
 
-from service.bodies import read_body
+from service.bodies import declared_length, read_body, receive_body
 from service.captures.schemas import CaptureOut, FileOut
 from service.captures.service import (
     capture_manifest,
@@ -26,24 +26,26 @@ from service.captures.uploads import (
     record_file,
 )
 from service.conventions import ItemId
-from service.deps import AdminKey, CaptureKey, CaptureOrReadKey, ContextDep
+from service.deps import AdminKey, AdmissionDep, CaptureKey, CaptureOrReadKey, ContextDep
 from service.models import CaptureFile
 from service.problems import (
     COMPONENT_REF,
     BadRequest,
     Conflict,
+    InsufficientStorage,
     InvalidContent,
     NotFound,
     PayloadTooLarge,
+    RequestTimeout,
+    ServiceBusy,
+    TooManyRequests,
     problem_responses,
 )
-from service.storage import sha256_hex
 
 __all__ = ["router"]
 
 router = APIRouter(prefix="/v1/captures", tags=["captures"])
 
-MANIFEST_LIMIT_BYTES = 1024 * 1024
 _MANIFEST_BODY: dict[str, Any] = {
     "requestBody": {
         "required": True,
@@ -64,12 +66,22 @@ _FILE_BODY: dict[str, Any] = {
     status_code=201,
     openapi_extra=_MANIFEST_BODY,
     responses=problem_responses(
-        Conflict, InvalidContent, PayloadTooLarge, also={200: {"description": "The capture existed already"}}
+        Conflict,
+        InvalidContent,
+        PayloadTooLarge,
+        InsufficientStorage,
+        also={200: {"description": "The capture existed already"}},
     ),
 )
 async def create(request: Request, response: Response, context: ContextDep, _key: CaptureKey) -> CaptureOut:
     """Create a capture from capture.json's content, or return the one with the same tree and time."""
-    body = await read_body(request, limit_bytes=MANIFEST_LIMIT_BYTES, what="capture.json")
+    body = await read_body(
+        request,
+        limit_bytes=context.settings.max_json_bytes,
+        idle_timeout_s=context.settings.upload_idle_timeout_s,
+        what="capture.json",
+    )
+    context.store.check_space()
 
     def create_in_database(session: Session) -> tuple[CaptureOut, bool]:
         capture, created = create_capture(session, body)
@@ -108,6 +120,10 @@ def remove(capture_id: ItemId, context: ContextDep, _key: AdminKey) -> Response:
         Conflict,
         PayloadTooLarge,
         InvalidContent,
+        RequestTimeout,
+        TooManyRequests,
+        ServiceBusy,
+        InsufficientStorage,
         also={200: {"description": "The same bytes were stored already"}},
     ),
 )
@@ -117,10 +133,16 @@ async def put_file(
     request: Request,
     response: Response,
     context: ContextDep,
-    _key: CaptureKey,
+    admission: AdmissionDep,
+    key: CaptureKey,
     content_digest: Annotated[str | None, Header(description="sha-256=:<base64>: (RFC 9530)")] = None,
 ) -> FileOut:
-    """Store one file of the capture, verified against its SHA-256; re-sending the same bytes is harmless."""
+    """Store one file of the capture, verified against its SHA-256; re-sending the same bytes is harmless.
+
+    The body streams to a temporary file beside the blobs while it is hashed, and is checked from there:
+    memory holds one network chunk of it, and an image's pixels only while it is checked (a few at once).
+    """
+    settings = context.settings
 
     def locate() -> str:
         with context.database.reading() as session:
@@ -139,32 +161,42 @@ async def put_file(
         repeated = compare(session, sha256, facts)
         if repeated is not None:
             return repeated, False
-        return record_file(session, capture_id, path=path, data=data, facts=facts), True
+        record = record_file(
+            session, capture_id, path=path, sha256=sha256, size_bytes=incoming.size_bytes, facts=facts
+        )
+        return record, True
 
     view = await run_in_threadpool(locate)
     declared = parse_content_digest(content_digest)
     # A conflict is told before the body is read: no point in taking megabytes that will be refused.
     await run_in_threadpool(compare_now, declared, None)
-    data = await read_body(request, limit_bytes=context.settings.max_upload_bytes, what=path)
-    sha256 = sha256_hex(data)
-    if sha256 != declared:
-        raise BadRequest(
-            f"the body's SHA-256 ({sha256}) is not the one Content-Digest declares ({declared}); "
-            "the file was damaged on the way: send it again",
-            code="digest_mismatch",
-            file=path,
-            field="Content-Digest",
+    limit = settings.max_json_bytes if path.endswith(".json") else settings.max_upload_bytes
+    context.store.check_space(declared_length(request, limit_bytes=limit, what=path) or 0)
+    with admission.upload(key.id, file=path), context.store.receive() as incoming:
+        await receive_body(
+            request, incoming, limit_bytes=limit, idle_timeout_s=settings.upload_idle_timeout_s, what=path
         )
-    repeated = await run_in_threadpool(compare_now, sha256, None)
-    if repeated is None:
-        facts = await run_in_threadpool(
-            check_content, data, path=path, view=view, max_pixels=context.settings.max_image_pixels
-        )
-        repeated = await run_in_threadpool(compare_now, sha256, facts)
-    if repeated is not None:
-        response.status_code = 200
-        return FileOut.model_validate(repeated, from_attributes=True)
-    await run_in_threadpool(context.store.put, data)
+        await run_in_threadpool(incoming.finish)
+        sha256 = incoming.sha256
+        if sha256 != declared:
+            raise BadRequest(
+                f"the body's SHA-256 ({sha256}) is not the one Content-Digest declares ({declared}); "
+                "the file was damaged on the way: send it again",
+                code="digest_mismatch",
+                file=path,
+                field="Content-Digest",
+            )
+        repeated = await run_in_threadpool(compare_now, sha256, None)
+        if repeated is None:
+            async with admission.image_checks:
+                facts = await run_in_threadpool(
+                    check_content, incoming.path, path=path, view=view, max_pixels=settings.max_image_pixels
+                )
+            repeated = await run_in_threadpool(compare_now, sha256, facts)
+        if repeated is not None:
+            response.status_code = 200
+            return FileOut.model_validate(repeated, from_attributes=True)
+        await run_in_threadpool(incoming.commit)
     record, created = await run_in_threadpool(context.database.write, persist)
     response.status_code = 201 if created else 200
     return FileOut.model_validate(record, from_attributes=True)

@@ -1,7 +1,8 @@
 """Receiving one file of a capture: its path, its RFC 9530 digest, its content, and storing it once.
 
-The content is checked with the measurement core's own rules (``parse_camera``, ``decode_depth``,
-``decode_color``), so a file the service accepts is a file the measurement can read. Sizes are checked
+The content is checked with the measurement core's own rules (``parse_camera``, ``open_depth``,
+``open_color``), on the file the body was streamed to, so a file the service accepts is a file the
+measurement can read. Sizes are checked
 against camera.json whichever arrives first. The bytes are made durable in the blob store (outside any
 database lock) before the record that acknowledges them is committed; the checks against the capture's
 other files run again in the write transaction.
@@ -13,17 +14,17 @@ import base64
 import binascii
 import re
 from dataclasses import dataclass
+from pathlib import Path
 
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from canopy_core.capture import CameraModel, CaptureManifest, color_file_names, parse_camera
 from canopy_core.errors import CaptureError
-from canopy_core.images import decode_color, decode_depth
+from canopy_core.images import open_color, open_depth
 from service.context import Context
 from service.models import CaptureFile
 from service.problems import BadRequest, Conflict, InvalidContent
-from service.storage import sha256_hex
 
 __all__ = [
     "FileFacts",
@@ -97,16 +98,15 @@ def parse_content_digest(header: str | None) -> str:
     )
 
 
-def check_content(data: bytes, *, path: str, view: str, max_pixels: int) -> FileFacts:
-    """Check a file's bytes by its kind on their own (sizes against camera.json come at storing)."""
+def check_content(received: Path, *, path: str, view: str, max_pixels: int) -> FileFacts:
+    """Check a received file (``received``: where its body was written; ``path``: its name in the capture)
+    by its kind on its own; sizes against camera.json come at storing."""
     name = path.rsplit("/", 1)[-1]
-    if name == "camera.json":
-        return FileFacts(camera=parse_camera(data, file=path, view=view))
-    if name == "depth.png":
-        depth = decode_depth(data, file=path, view=view, max_pixels=max_pixels)
-        return FileFacts(image_width=depth.shape[1], image_height=depth.shape[0])
-    color = decode_color(data, file=path, view=view, max_pixels=max_pixels)
-    return FileFacts(image_width=color.shape[1], image_height=color.shape[0])
+    if name == "camera.json":  # read whole: its size was limited to max_json_bytes
+        return FileFacts(camera=parse_camera(received.read_bytes(), file=path, view=view))
+    opener = open_depth if name == "depth.png" else open_color
+    with opener(received, file=path, view=view, max_pixels=max_pixels) as image:
+        return FileFacts(image_width=image.width, image_height=image.height)
 
 
 def _stored_camera(context: Context, files: dict[str, CaptureFile], view: str) -> CameraModel | None:
@@ -196,14 +196,14 @@ def check_against_stored(
 
 
 def record_file(
-    session: Session, capture_id: int, *, path: str, data: bytes, facts: FileFacts
+    session: Session, capture_id: int, *, path: str, sha256: str, size_bytes: int, facts: FileFacts
 ) -> CaptureFile:
     """Record a file whose bytes are already durable in the blob store."""
     record = CaptureFile(
         capture_id=capture_id,
         path=path,
-        sha256=sha256_hex(data),
-        size_bytes=len(data),
+        sha256=sha256,
+        size_bytes=size_bytes,
         image_width=facts.image_width,
         image_height=facts.image_height,
     )
