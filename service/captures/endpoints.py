@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from functools import partial
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Header, Request, Response
@@ -188,10 +189,11 @@ async def put_file(
             )
         repeated = await run_in_threadpool(compare_now, sha256, None)
         if repeated is None:
-            async with admission.image_checks:
-                facts = await run_in_threadpool(
+            facts = await admission.check_image(
+                partial(
                     check_content, incoming.path, path=path, view=view, max_pixels=settings.max_image_pixels
                 )
+            )
             repeated = await run_in_threadpool(compare_now, sha256, facts)
         if repeated is not None:
             response.status_code = 200
