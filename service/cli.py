@@ -240,40 +240,54 @@ def watch(
 def keys_create(
     scope: Annotated[list[str], typer.Option("--scope", help="capture, read or admin; repeat for several.")],
     name: Annotated[str, typer.Option(help="Who or what the key is for.")] = "unnamed",
+    expires_in: Annotated[
+        str | None,
+        typer.Option(
+            "--expires-in", metavar="LIFETIME", help="Refuse the key after this long: 90d, 12h, 30m."
+        ),
+    ] = None,
     data: DataOpt = None,
     init: Annotated[
         bool, typer.Option("--init", help="Create the database if the data folder has none yet.")
     ] = False,
 ) -> None:
     """Create a key; it is printed alone on the last line, and never shown again."""
-    from service.keys.service import create_key
+    from service.keys.service import create_key, parse_lifetime
+    from service.models import utc_text
 
+    try:
+        lifetime = None if expires_in is None else parse_lifetime(expires_in)
+    except ValueError as exc:
+        typer.echo(f"error: --expires-in: {exc}", err=True)
+        raise typer.Exit(2) from exc
     context = _keys_context(data, init=init)
     try:
         with context.database.writing() as session:
-            new = create_key(session, name=name, scopes=scope)
-            prefix, scopes = new.record.prefix, new.record.scopes
+            new = create_key(session, name=name, scopes=scope, expires_in=lifetime)
+            prefix, scopes, expires_at = new.record.prefix, new.record.scopes, new.record.expires_at
     except ValueError as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from exc
-    typer.echo(f"Created key {prefix} ({scopes}) named {name!r}:", err=True)
+    until = "" if expires_at is None else f", valid until {utc_text(expires_at)}"
+    typer.echo(f"Created key {prefix} ({scopes}) named {name!r}{until}:", err=True)
     typer.echo(new.key)
 
 
 @keys_app.command("list")
 def keys_list(data: DataOpt = None) -> None:
-    """Every key: prefix, scopes, name, created, revoked."""
+    """Every key: prefix, scopes, name, created, revoked, expires (UTC)."""
     from service.keys.service import list_keys
 
     context = _keys_context(data)
     with context.database.reading() as session:
         records = list_keys(session)
-    typer.echo(f"{'prefix':<10}{'scopes':<22}{'created':<22}{'revoked':<22}name")
+    typer.echo(f"{'prefix':<10}{'scopes':<22}{'created':<22}{'revoked':<22}{'expires':<22}name")
     for record in records:
         revoked = f"{record.revoked_at:%Y-%m-%d %H:%M:%S}" if record.revoked_at else "-"
+        expires = f"{record.expires_at:%Y-%m-%d %H:%M:%S}" if record.expires_at else "-"
         typer.echo(
             f"{record.prefix:<10}{record.scopes:<22}{record.created_at:%Y-%m-%d %H:%M:%S}   "
-            f"{revoked:<22}{record.name}"
+            f"{revoked:<22}{expires:<22}{record.name}"
         )
 
 

@@ -127,6 +127,9 @@ class Capture(Base):
     captured_at: Mapped[datetime]
     manifest: Mapped[dict[str, Any]]
     created_at: Mapped[datetime] = mapped_column(default=utc_now)
+    created_by_key_id: Mapped[int | None] = mapped_column(ForeignKey("api_keys.id"))
+    """The key that created it: a capture key writes only to captures it created. None for captures made
+    before keys owned them, which any capture key may still write to."""
 
     tree: Mapped[Tree] = relationship(lazy="raise")
 
@@ -209,3 +212,5 @@ class ApiKey(Base):
     scopes: Mapped[str] = mapped_column(String(100))
     created_at: Mapped[datetime] = mapped_column(default=utc_now)
     revoked_at: Mapped[datetime | None]
+    expires_at: Mapped[datetime | None]
+    """After this instant the key is refused; None: it does not expire."""

@@ -14,6 +14,7 @@ from service.captures.schemas import CaptureOut, FileOut
 from service.captures.service import (
     capture_manifest,
     capture_out,
+    check_access,
     create_capture,
     delete_capture,
     get_capture,
@@ -33,6 +34,7 @@ from service.problems import (
     COMPONENT_REF,
     BadRequest,
     Conflict,
+    Forbidden,
     InsufficientStorage,
     InvalidContent,
     NotFound,
@@ -71,10 +73,11 @@ _FILE_BODY: dict[str, Any] = {
         InvalidContent,
         PayloadTooLarge,
         InsufficientStorage,
+        Forbidden,
         also={200: {"description": "The capture existed already"}},
     ),
 )
-async def create(request: Request, response: Response, context: ContextDep, _key: CaptureKey) -> CaptureOut:
+async def create(request: Request, response: Response, context: ContextDep, key: CaptureKey) -> CaptureOut:
     """Create a capture from capture.json's content, or return the one with the same tree and time."""
     body = await read_body(
         request,
@@ -85,7 +88,7 @@ async def create(request: Request, response: Response, context: ContextDep, _key
     context.store.check_space()
 
     def create_in_database(session: Session) -> tuple[CaptureOut, bool]:
-        capture, created = create_capture(session, body)
+        capture, created = create_capture(session, body, key=key)
         return capture_out(session, capture), created
 
     out, created = await run_in_threadpool(context.database.write, create_in_database)
@@ -94,11 +97,13 @@ async def create(request: Request, response: Response, context: ContextDep, _key
     return out
 
 
-@router.get("/{capture_id}", response_model=CaptureOut, responses=problem_responses(NotFound))
-def read(capture_id: ItemId, context: ContextDep, _key: CaptureOrReadKey) -> CaptureOut:
-    """A capture and which of its files have been received."""
+@router.get("/{capture_id}", response_model=CaptureOut, responses=problem_responses(NotFound, Forbidden))
+def read(capture_id: ItemId, context: ContextDep, key: CaptureOrReadKey) -> CaptureOut:
+    """A capture and which of its files have been received (a capture key: of the captures it created)."""
     with context.database.reading() as session:
-        return capture_out(session, get_capture(session, capture_id))
+        capture = get_capture(session, capture_id)
+        check_access(capture, key, writing=False)
+        return capture_out(session, capture)
 
 
 @router.delete(
@@ -125,6 +130,7 @@ def remove(capture_id: ItemId, context: ContextDep, _key: AdminKey) -> Response:
         TooManyRequests,
         ServiceBusy,
         InsufficientStorage,
+        Forbidden,
         also={200: {"description": "The same bytes were stored already"}},
     ),
 )
@@ -147,7 +153,9 @@ async def put_file(
 
     def locate() -> str:
         with context.database.reading() as session:
-            return check_path(capture_manifest(get_capture(session, capture_id)), path)
+            capture = get_capture(session, capture_id)
+            check_access(capture, key, writing=True)
+            return check_path(capture_manifest(capture), path)
 
     def compare(session: Session, sha256: str, facts: FileFacts | None) -> CaptureFile | None:
         return check_against_stored(

@@ -16,12 +16,14 @@ from canopy_core.capture import (
     stored_manifest,
 )
 from service.captures.schemas import CaptureOut
-from service.models import Capture, CaptureFile, Job, Orchard, Row, Tree
-from service.problems import Conflict, NotFound
+from service.keys.service import grants
+from service.models import ApiKey, Capture, CaptureFile, Job, Orchard, Row, Tree
+from service.problems import Conflict, Forbidden, NotFound
 
 __all__ = [
     "capture_manifest",
     "capture_out",
+    "check_access",
     "create_capture",
     "delete_capture",
     "get_capture",
@@ -48,11 +50,13 @@ def _tree(session: Session, manifest: CaptureManifest) -> Tree:
     return tree
 
 
-def create_capture(session: Session, body: bytes) -> tuple[Capture, bool]:
-    """The capture ``body`` (capture.json's bytes) describes, and whether it was created now.
+def create_capture(session: Session, body: bytes, *, key: ApiKey) -> tuple[Capture, bool]:
+    """The capture ``body`` (capture.json's bytes) describes, and whether it was created now (by ``key``,
+    which owns it then).
 
     The same orchard, row, tree and capture time name the same capture: sending it again returns the one
-    stored. A different capture.json for that tree and time is a conflict, never a second capture.
+    stored, if ``key`` may write to it (see :func:`check_access`). A different capture.json for that tree
+    and time is a conflict, never a second capture.
     """
     manifest = parse_manifest(body)
     captured_at = capture_time(manifest)
@@ -69,8 +73,9 @@ def create_capture(session: Session, body: bytes) -> tuple[Capture, bool]:
                 file="capture.json",
                 capture_id=existing.id,
             )
+        check_access(existing, key, writing=True)
         return existing, False
-    capture = Capture(tree_id=tree.id, captured_at=captured_at, manifest=document)
+    capture = Capture(tree_id=tree.id, captured_at=captured_at, manifest=document, created_by_key_id=key.id)
     session.add(capture)
     session.flush()
     return capture, True
@@ -101,6 +106,26 @@ def get_capture(session: Session, capture_id: int) -> Capture:
     if capture is None:
         raise NotFound(f"no capture with id {capture_id}", capture_id=capture_id)
     return capture
+
+
+def check_access(capture: Capture, key: ApiKey, *, writing: bool) -> None:
+    """A 403 problem unless ``key`` may write to (``writing``) or read the capture.
+
+    A capture key writes only to the captures it created (files, jobs), and reads only those; reading
+    others takes the read scope, writing them the admin scope. Captures made before keys owned them
+    (``created_by_key_id`` None) are open to any capture key, as they were.
+    """
+    if capture.created_by_key_id in (None, key.id) or grants(key, "admin"):
+        return
+    if not writing and grants(key, "read"):
+        return
+    doing = "writes to" if writing else "reads"
+    raise Forbidden(
+        f"capture {capture.id} was created by another API key; key {key.prefix} {doing} only the captures "
+        "it created: send it with the key that created it, or with an admin key",
+        code="not_capture_owner",
+        capture_id=capture.id,
+    )
 
 
 def capture_manifest(capture: Capture) -> CaptureManifest:

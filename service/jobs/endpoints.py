@@ -7,13 +7,13 @@ from typing import Annotated
 from fastapi import APIRouter, Header, Query, Response
 from sqlalchemy.orm import Session
 
-from service.captures.service import get_capture
+from service.captures.service import check_access, get_capture
 from service.conventions import MAX_ID, ItemId, SinceQuery
 from service.deps import CaptureKey, CaptureOrReadKey, ContextDep, ReadKey
 from service.jobs.schemas import JobOrder, JobOut, JobRequest, JobState
 from service.jobs.service import create_job, get_job, job_out, list_jobs
 from service.pagination import CursorQuery, LimitQuery, Page
-from service.problems import BadRequest, Conflict, InvalidContent, NotFound, problem_responses
+from service.problems import BadRequest, Conflict, Forbidden, InvalidContent, NotFound, problem_responses
 
 __all__ = ["router"]
 
@@ -24,13 +24,13 @@ router = APIRouter(tags=["jobs"])
     "/v1/captures/{capture_id}/jobs",
     response_model=JobOut,
     status_code=202,
-    responses=problem_responses(NotFound, Conflict, InvalidContent),
+    responses=problem_responses(NotFound, Conflict, InvalidContent, Forbidden),
 )
 def start(
     capture_id: ItemId,
     response: Response,
     context: ContextDep,
-    _key: CaptureKey,
+    key: CaptureKey,
     request: JobRequest | None = None,
     idempotency_key: Annotated[
         str | None, Header(max_length=200, description="Repeat it to get the same job back")
@@ -39,9 +39,11 @@ def start(
     """Queue a measurement of a capture whose files have all arrived; 409 while some are missing."""
 
     def queue(session: Session) -> JobOut:
+        capture = get_capture(session, capture_id)
+        check_access(capture, key, writing=True)
         job, _created = create_job(
             session,
-            get_capture(session, capture_id),
+            capture,
             overrides=request.config if request else None,
             idempotency_key=idempotency_key,
         )
@@ -55,12 +57,17 @@ def start(
 @router.get(
     "/v1/jobs/{job_id}",
     response_model=JobOut,
-    responses=problem_responses(NotFound, also={304: {"description": "Unchanged since the ETag sent"}}),
+    responses=problem_responses(
+        NotFound, Forbidden, also={304: {"description": "Unchanged since the ETag sent"}}
+    ),
 )
-def read(job_id: ItemId, context: ContextDep, _key: CaptureOrReadKey) -> JobOut:
-    """A job's state, stage and progress; send If-None-Match with the last ETag to get 304 while unchanged."""
+def read(job_id: ItemId, context: ContextDep, key: CaptureOrReadKey) -> JobOut:
+    """A job's state, stage and progress (a capture key: of the captures it created); send If-None-Match
+    with the last ETag to get 304 while unchanged."""
     with context.database.reading() as session:
-        return job_out(session, get_job(session, job_id))
+        job = get_job(session, job_id)
+        check_access(get_capture(session, job.capture_id), key, writing=False)
+        return job_out(session, job)
 
 
 @router.get("/v1/jobs", response_model=Page[JobOut], responses=problem_responses(BadRequest))

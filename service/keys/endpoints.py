@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from datetime import timedelta
+
 from fastapi import APIRouter
 
 from canopy_core import __version__
@@ -25,6 +27,7 @@ def key_out(record: ApiKey) -> KeyOut:
         scopes=record.scopes.split(),
         created_at=record.created_at,
         revoked_at=record.revoked_at,
+        expires_at=record.expires_at,
     )
 
 
@@ -32,7 +35,8 @@ def key_out(record: ApiKey) -> KeyOut:
 def create(body: KeyCreate, context: ContextDep, _key: AdminKey) -> KeyCreated:
     """Create a key; the answer holds the key, shown this once."""
     with context.database.writing() as session:
-        new = create_key(session, name=body.name, scopes=body.scopes)
+        lifetime = None if body.expires_in_s is None else timedelta(seconds=body.expires_in_s)
+        new = create_key(session, name=body.name, scopes=body.scopes, expires_in=lifetime)
         return KeyCreated(**key_out(new.record).model_dump(), key=new.key)
 
 

@@ -17,6 +17,9 @@ class KeyCreate(BaseModel):
 
     name: str = Field(min_length=1, max_length=200)
     scopes: list[Scope] = Field(min_length=1)
+    expires_in_s: int | None = Field(
+        None, gt=0, le=100 * 366 * 86400, description="Seconds until the key is refused; none: never."
+    )
 
 
 class KeyOut(BaseModel):
@@ -28,6 +31,7 @@ class KeyOut(BaseModel):
     scopes: list[str]
     created_at: datetime
     revoked_at: datetime | None
+    expires_at: datetime | None
 
 
 class KeyCreated(KeyOut):

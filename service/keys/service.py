@@ -8,20 +8,34 @@ key is random, not a password someone chose.
 from __future__ import annotations
 
 import hashlib
+import re
 import secrets
 from collections.abc import Sequence
 from dataclasses import dataclass
+from datetime import timedelta
 
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
-from service.models import ApiKey, utc_now
-from service.problems import Conflict
+from service.models import ApiKey, utc_now, utc_text
+from service.problems import Conflict, Unauthorized
 
-__all__ = ["SCOPES", "NewKey", "authenticate", "create_key", "grants", "list_keys", "revoke_key"]
+__all__ = [
+    "SCOPES",
+    "NewKey",
+    "authenticate",
+    "create_key",
+    "grants",
+    "list_keys",
+    "parse_lifetime",
+    "revoke_key",
+]
 
 SCOPES = ("capture", "read", "admin")
 """``capture``: create captures, upload files, start jobs. ``read``: every GET. ``admin``: everything."""
+
+
+_LIFETIME_UNITS = {"d": "days", "h": "hours", "m": "minutes"}
 
 
 @dataclass(frozen=True)
@@ -36,11 +50,16 @@ def _digest(key: str) -> str:
     return hashlib.sha256(key.encode()).hexdigest()
 
 
-def create_key(session: Session, *, name: str, scopes: Sequence[str]) -> NewKey:
-    """Create a key with the given scopes (each one of :data:`SCOPES`)."""
+def create_key(
+    session: Session, *, name: str, scopes: Sequence[str], expires_in: timedelta | None = None
+) -> NewKey:
+    """Create a key with the given scopes (each one of :data:`SCOPES`), refused after ``expires_in``
+    (never, when None)."""
     unknown = sorted(set(scopes) - set(SCOPES))
     if unknown or not scopes:
         raise ValueError(f"scopes must be among {', '.join(SCOPES)}; got {', '.join(scopes) or 'none'}")
+    if expires_in is not None and expires_in <= timedelta(0):
+        raise ValueError(f"a key must live a while: expires_in {expires_in} is not after now")
     prefix = secrets.token_hex(4)
     key = f"canopy_{prefix}_{secrets.token_urlsafe(32)}"
     record = ApiKey(
@@ -48,6 +67,7 @@ def create_key(session: Session, *, name: str, scopes: Sequence[str]) -> NewKey:
         prefix=prefix,
         key_sha256=_digest(key),
         scopes=" ".join(sorted(set(scopes), key=SCOPES.index)),
+        expires_at=None if expires_in is None else utc_now() + expires_in,
     )
     session.add(record)
     session.flush()
@@ -80,12 +100,26 @@ def revoke_key(session: Session, *, prefix: str) -> ApiKey | None:
     return record
 
 
-def authenticate(session: Session, key: str) -> ApiKey | None:
-    """The live (not revoked) key record matching ``key``, or None."""
+def authenticate(session: Session, key: str) -> ApiKey:
+    """The key record matching ``key``; a 401 problem saying why when it is unknown, revoked or expired."""
     record = session.scalar(select(ApiKey).where(ApiKey.key_sha256 == _digest(key)))
-    if record is None or record.revoked_at is not None:
-        return None
+    if record is None:
+        raise Unauthorized("the API key is unknown")
+    if record.revoked_at is not None:
+        raise Unauthorized(f"API key {record.prefix} was revoked at {utc_text(record.revoked_at)}")
+    if record.expires_at is not None and record.expires_at <= utc_now():
+        raise Unauthorized(
+            f"API key {record.prefix} expired at {utc_text(record.expires_at)}; ask an admin for a new one"
+        )
     return record
+
+
+def parse_lifetime(text: str) -> timedelta:
+    """A key's lifetime as written on the command line: a number and a unit, ``90d``, ``12h``, ``30m``."""
+    match = re.fullmatch(r"\s*(\d+)\s*([dhm])\s*", text)
+    if match is None or int(match.group(1)) == 0:
+        raise ValueError(f"{text!r} is not a lifetime such as 90d, 12h or 30m (days, hours, minutes)")
+    return timedelta(**{_LIFETIME_UNITS[match.group(2)]: int(match.group(1))})
 
 
 def grants(record: ApiKey, scope: str) -> bool:

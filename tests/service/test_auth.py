@@ -6,14 +6,16 @@ once (DESIGN.md, "HTTP contract, v1").
 from __future__ import annotations
 
 import re
+import time
 import uuid
 from collections.abc import Iterator
+from datetime import UTC, datetime, timedelta
 from typing import Any
 
 import httpx
 import pytest
 
-from tests.service.running import Service
+from tests.service.running import Service, content_digest
 
 PROBLEM_JSON = "application/problem+json"
 KEY_PATTERN = re.compile(r"canopy_([0-9a-f]{8})_\S+")
@@ -300,3 +302,78 @@ def test_key_with_an_unknown_scope_is_not_created(admin: httpx.Client) -> None:
     response = admin.post("/v1/keys", json={"name": "root", "scopes": ["superuser"]})
     assert_problem(response, 422)
     assert len(admin.get("/v1/keys").json()) == before
+
+
+# --- a capture key writes to its own captures; keys expire -------------------------------------------------
+
+
+def _capture_client(shared_service: Service, admin: httpx.Client, name: str) -> httpx.Client:
+    created = admin.post("/v1/keys", json={"name": name, "scopes": ["capture"]})
+    assert created.status_code == 201, created.text
+    return shared_service.client(created.json()["key"])
+
+
+def test_a_capture_key_writes_and_reads_only_the_captures_it_created(
+    shared_service: Service, admin: httpx.Client, read_key: str
+) -> None:
+    document = manifest()
+    camera = b'{"depth_scale": 1000}'
+    with (
+        _capture_client(shared_service, admin, "laptop A") as owner,
+        _capture_client(shared_service, admin, "laptop B") as other,
+        shared_service.client(read_key) as reader,
+    ):
+        created = owner.post("/v1/captures", json=document)
+        capture_id = created.json()["id"]
+        file_url = f"/v1/captures/{capture_id}/files/views/1/camera.json"
+        digest = {"Content-Digest": content_digest(camera)}
+        refusals = [
+            other.post("/v1/captures", json=document),  # the same capture.json: the owner's capture
+            other.put(file_url, content=camera, headers=digest),
+            other.post(f"/v1/captures/{capture_id}/jobs"),
+            other.get(f"/v1/captures/{capture_id}"),
+        ]
+        own = owner.get(f"/v1/captures/{capture_id}")
+        read = reader.get(f"/v1/captures/{capture_id}")
+        admins = admin.get(f"/v1/captures/{capture_id}")
+    assert created.status_code == 201, created.text
+    for refused in refusals:
+        body = assert_problem(refused, 403, code="not_capture_owner", capture_id=capture_id)
+        assert "created by another API key" in body["detail"]
+    assert (own.status_code, read.status_code, admins.status_code) == (200, 200, 200)
+    assert own.json()["files_received"] == []  # the other key's file was not stored
+
+
+def test_a_key_with_an_expiry_works_until_then_and_is_refused_after_saying_so(
+    shared_service: Service, admin: httpx.Client
+) -> None:
+    created = admin.post("/v1/keys", json={"name": "season", "scopes": ["read"], "expires_in_s": 2})
+    assert created.status_code == 201, created.text
+    body = created.json()
+    with shared_service.client(body["key"]) as client:
+        before = client.get("/v1/orchards")
+        time.sleep(2.5)
+        after = client.get("/v1/orchards")
+    assert body["expires_at"] is not None and body["expires_at"].endswith("Z")
+    assert before.status_code == 200
+    assert_unauthorized(after)
+    assert f"API key {body['prefix']} expired at " in after.json()["detail"]
+
+
+def test_keys_create_takes_a_lifetime_and_lists_its_expiry(shared_service: Service) -> None:
+    made = shared_service.canopy("keys", "create", "--scope", "read", "--expires-in", "90d")
+    refused = shared_service.canopy("keys", "create", "--scope", "read", "--expires-in", "soon")
+    listed = shared_service.canopy("keys", "list")
+    key = made.stdout.strip().splitlines()[-1]
+    assert made.returncode == 0, made.stderr
+    assert "valid until " in made.stderr
+    line = next(line for line in listed.stdout.splitlines() if line.startswith(prefix_of(key)))
+    in_90_days = datetime.now(UTC) + timedelta(days=90)
+    assert (
+        in_90_days.strftime("%Y-%m-%d") in line
+        or (in_90_days - timedelta(minutes=1)).strftime("%Y-%m-%d") in line
+    )
+    assert refused.returncode == 2
+    assert "--expires-in: 'soon' is not a lifetime such as 90d" in refused.stderr
+    with shared_service.client(key) as client:
+        assert client.get("/v1/orchards").status_code == 200

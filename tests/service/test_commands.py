@@ -5,15 +5,19 @@ from __future__ import annotations
 import os
 import signal
 import socket
+import sqlite3
 import subprocess
 import time
 from pathlib import Path
 
 import httpx
 import pytest
+from alembic import command
 from alembic.autogenerate import compare_metadata
+from alembic.config import Config
 from alembic.migration import MigrationContext
 
+import migrations
 from service.database import Database
 from service.migrate import is_current, upgrade
 from service.models import Base
@@ -252,3 +256,35 @@ def test_a_port_in_use_is_said_in_one_line_before_anything_is_created(tmp_path: 
     ]
     assert "canopy_" not in done.stdout
     assert not (tmp_path / "data" / "canopy.db").exists()
+
+
+def test_upgrading_a_database_keeps_its_rows_and_never_reuses_an_id(tmp_path: Path) -> None:
+    """A database made by the first schema, with a capture deleted, upgraded to the newest: the rows stay,
+    the tables keep AUTOINCREMENT (SQLite alters a table by copying it) and the next id is a new one."""
+    path = tmp_path / "old.db"
+    config = Config()
+    config.set_main_option("script_location", str(Path(migrations.__file__).parent))
+    with Database(f"sqlite:///{path}").write_engine.connect() as connection:
+        config.attributes["connection"] = connection
+        command.upgrade(config, "0001")
+        connection.commit()
+    with sqlite3.connect(path) as old:
+        old.execute("INSERT INTO orchards (id, name, created_at) VALUES (1, 'O', '2026-11-01 00:00:00')")
+        old.execute("INSERT INTO rows (id, orchard_id, name, created_at) VALUES (1, 1, 'R', '2026-11-01')")
+        old.execute("INSERT INTO trees (id, row_id, name, created_at) VALUES (1, 1, 'T', '2026-11-01')")
+        for capture_id in (1, 2, 3):
+            old.execute(
+                "INSERT INTO captures (tree_id, captured_at, manifest, created_at) VALUES (1, ?, '{}', ?)",
+                (f"2026-11-0{capture_id} 00:00:00", "2026-11-01 00:00:00"),
+            )
+        old.execute("DELETE FROM captures WHERE id = 3")
+    upgrade(Database(f"sqlite:///{path}"))
+    with sqlite3.connect(path) as new:
+        kept = new.execute("SELECT id, created_by_key_id FROM captures ORDER BY id").fetchall()
+        new.execute(
+            "INSERT INTO captures (tree_id, captured_at, manifest, created_at) VALUES (1, ?, '{}', ?)",
+            ("2026-11-09 00:00:00", "2026-11-09 00:00:00"),
+        )
+        next_id = new.execute("SELECT max(id) FROM captures").fetchone()[0]
+    assert kept == [(1, None), (2, None)]  # owned by no key: open to every capture key, as before
+    assert next_id == 4
