@@ -64,6 +64,10 @@ COLOR_NAMES = ("color.png", "color.jpg")
 _CONTROL = re.compile(r"[\x00-\x1f\x7f]")
 """Names and view paths hold no control characters (a NUL, a newline): they become folder names, CSV
 cells, URLs and log lines."""
+_PRINTABLE = r"^[^\u0000-\u001f\u007f]+$"
+"""The same rule as a JSON-schema pattern."""
+_VIEW_PATH = r"^views/(?!\.\.?$)[^/\\\u0000-\u001f\u007f]+$"
+"""A view path as a JSON-schema pattern: ``views/<name>``, the name neither ``.`` nor ``..``."""
 
 
 _STORED = "stored"
@@ -82,14 +86,25 @@ class _Strict(BaseModel):
 class CaptureManifest(_Strict):
     """The content of ``capture.json``."""
 
-    format: str
-    orchard: str = Field(min_length=1, max_length=200)
-    row: str = Field(min_length=1, max_length=200)
-    tree: str = Field(min_length=1, max_length=200)
-    captured_at: str = Field(min_length=1, max_length=64)
+    # The validators below give these rules their own messages; json_schema_extra states them in the
+    # JSON schema too (the OpenAPI document), so what the schema allows is what is accepted.
+    format: str = Field(json_schema_extra={"const": CAPTURE_FORMAT})
+    orchard: str = Field(min_length=1, max_length=200, json_schema_extra={"pattern": _PRINTABLE})
+    row: str = Field(min_length=1, max_length=200, json_schema_extra={"pattern": _PRINTABLE})
+    tree: str = Field(min_length=1, max_length=200, json_schema_extra={"pattern": _PRINTABLE})
+    captured_at: str = Field(
+        min_length=1,
+        max_length=64,
+        description="ISO 8601 with a time zone, e.g. 2026-11-20T08:31:00Z (the service needs the zone)",
+        json_schema_extra={"format": "date-time"},
+    )
     sensor: str = "unknown"
     calibration_balls: BallSet = Field(default_factory=BallSet)
-    views: list[str] = Field(min_length=1, max_length=64)
+    views: list[str] = Field(
+        min_length=1,
+        max_length=64,
+        json_schema_extra={"uniqueItems": True, "items": {"type": "string", "pattern": _VIEW_PATH}},
+    )
     roi: RoiConfig | None = None
     extras: dict[str, Any] = Field(default_factory=dict)
 
