@@ -3,13 +3,16 @@
 SQLite connections get WAL (readers never wait for the writer), a busy timeout, foreign keys and full
 synchronous commits (an acknowledged write survives power loss). Transactions that write start with
 ``BEGIN IMMEDIATE``, so two writers queue on the busy timeout instead of failing when a read lock cannot be
-upgraded; reads stay deferred and never block the writer.
+upgraded; reads stay deferred and never block the writer. Within one process, writers take turns on a
+lock first: SQLite's busy handler polls with sleeps growing to 100 ms, so fifty requests writing at once
+would each wait far longer than the writes take; the busy timeout is left to writers of other processes.
 """
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from contextlib import AbstractContextManager, contextmanager, nullcontext
 from typing import Any, TypeVar
 
 from sqlalchemy import Engine, create_engine, event, text
@@ -67,6 +70,8 @@ class Database:
             self.read_engine = self.write_engine = create_engine(url, pool_pre_ping=True)
         self._read_sessions = sessionmaker(self.read_engine, expire_on_commit=False)
         self._write_sessions = sessionmaker(self.write_engine, expire_on_commit=False)
+        # PostgreSQL takes concurrent writers itself, with row locks.
+        self._turn: AbstractContextManager[Any] = threading.Lock() if self.is_sqlite else nullcontext()
 
     @contextmanager
     def reading(self) -> Iterator[Session]:
@@ -77,7 +82,7 @@ class Database:
     @contextmanager
     def writing(self) -> Iterator[Session]:
         """A session whose transaction commits at the end of the block, or rolls back on an exception."""
-        with self._write_sessions() as session, session.begin():
+        with self._turn, self._write_sessions() as session, session.begin():
             yield session
 
     def write(self, work: Callable[[Session], T]) -> T:

@@ -71,6 +71,13 @@ class Settings(BaseSettings):
     job_max_attempts: int = Field(3, ge=1, description="Attempts before a crashing job stays failed.")
     job_timeout_s: float = Field(600.0, gt=0, description="A measurement running longer is stopped.")
     worker_poll_s: float = Field(0.5, gt=0, description="Pause between claims when the queue is empty.")
+    worker_nice: int = Field(
+        10,
+        ge=0,
+        le=19,
+        description="CPU niceness the worker and its measurements run at: on a machine shared with the API, "
+        "requests are answered first and measurements take the CPU left over (0: same as the API).",
+    )
 
     @cached_property
     def sqlalchemy_url(self) -> str:

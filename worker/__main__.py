@@ -31,7 +31,9 @@ def _stop_when_stdin_closes(worker: Worker) -> None:
 def main() -> None:
     """Run a worker on the database the ``CANOPY_*`` settings name."""
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
-    context = Context.from_settings(Settings())
+    settings = Settings()
+    os.nice(settings.worker_nice)  # before the fork server starts: every measurement inherits it
+    context = Context.from_settings(settings)
     if not is_current(context.database):
         sys.stderr.write(
             "error: the database is not initialised or not at the newest schema; start `canopy serve` "

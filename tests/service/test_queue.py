@@ -18,6 +18,7 @@ from sqlalchemy import create_engine, select, text
 from sqlalchemy.exc import OperationalError
 
 from service.captures.service import create_capture
+from service.keys.service import create_key
 from service.database import Database
 from service.jobs.queue import Lease, claim, complete, fail, release, renew
 from service.migrate import upgrade
@@ -63,7 +64,8 @@ def database(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[Databas
 
 def _queue_jobs(database: Database, count: int) -> list[int]:
     with database.writing() as session:
-        capture, _ = create_capture(session, json.dumps(MANIFEST).encode())
+        key = create_key(session, name="queue tests", scopes=["capture"]).record
+        capture, _ = create_capture(session, json.dumps(MANIFEST).encode(), key=key)
         jobs = [Job(capture_id=capture.id) for _ in range(count)]
         session.add_all(jobs)
         session.flush()
