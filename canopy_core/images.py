@@ -1,7 +1,8 @@
 """Decoding and checking the image files of a capture: 16-bit depth PNGs and 8-bit RGB colour images.
 
 Works on bytes or a file, so that the service checks an upload (streamed to a file) with exactly the checks
-the offline loader makes. Pillow reads the header first, so an oversized image (a decompression bomb) is refused before decoding.
+the offline loader makes. Pillow reads the header first, so an oversized image (a decompression bomb) is
+refused before decoding.
 """
 
 from __future__ import annotations

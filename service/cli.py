@@ -1,5 +1,5 @@
 """The whole ``canopy`` command line: the measurement core's commands, plus the service's ``serve``,
-``worker``, ``up`` (both together: the embedded default) and ``keys``.
+``worker``, ``up`` (both together: the embedded default), ``keys``, ``backup`` and ``restore``.
 
 Heavy imports (FastAPI, SQLAlchemy, uvicorn) happen inside the commands, so ``canopy measure`` and
 ``canopy --help`` do not pay for them.
@@ -184,6 +184,57 @@ def up(host: HostOpt = "127.0.0.1", port: PortOpt = 8000, data: DataOpt = None) 
         _serve(context, host, port)
     finally:
         worker_process.stop()
+
+
+@app.command("backup")
+def backup_command(
+    destination: Annotated[Path, typer.Argument(metavar="DEST", help="Folder to write the backup into.")],
+    data: DataOpt = None,
+) -> None:
+    """Copy the database and the files it refers to into DEST, while the service runs (SQLite only).
+
+    DEST may hold an earlier backup: it is brought up to date, copying only the new files.
+    """
+    from service.backup import BackupError, backup
+
+    settings = _settings(data)
+    if settings.database_url is not None:
+        typer.echo(
+            "error: canopy backup copies the embedded SQLite database; back up PostgreSQL with pg_dump and "
+            "the data folder's blobs/ with any file copy",
+            err=True,
+        )
+        raise typer.Exit(2)
+    try:
+        report = backup(settings.data_dir.resolve(), destination)
+    except BackupError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from exc
+    typer.echo(
+        f"Backed up {report.captures} captures, {report.files} files and {report.measurements} measurements "
+        f"({report.blobs} blobs, {report.blobs_copied} copied now, {report.bytes_copied / 1e6:.1f} MB) into "
+        f"{destination}"
+    )
+
+
+@app.command("restore")
+def restore_command(
+    source: Annotated[Path, typer.Argument(metavar="BACKUP", help="A folder `canopy backup` wrote.")],
+    data: DataOpt = None,
+) -> None:
+    """Bring a backup back into the data folder, which must hold no database yet; every file is checked."""
+    from service.backup import BackupError, restore
+
+    settings = _settings(data)
+    try:
+        report = restore(source, settings.data_dir.resolve())
+    except BackupError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from exc
+    typer.echo(
+        f"Restored the backup of {report.taken_at}: {report.captures} captures, {report.files} files and "
+        f"{report.measurements} measurements into {settings.data_dir.resolve()}"
+    )
 
 
 ServerOpt = Annotated[str, typer.Option("--server", help="The service's address, e.g. http://10.0.0.5:8000.")]

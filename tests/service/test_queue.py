@@ -18,9 +18,9 @@ from sqlalchemy import create_engine, select, text
 from sqlalchemy.exc import OperationalError
 
 from service.captures.service import create_capture
-from service.keys.service import create_key
 from service.database import Database
 from service.jobs.queue import Lease, claim, complete, fail, release, renew
+from service.keys.service import create_key
 from service.migrate import upgrade
 from service.models import Job, Measurement
 
