@@ -95,8 +95,11 @@ def _serve(context: Context, host: str, port: int) -> None:
     import uvicorn
 
     from service.app import create_app
+    from service.http_protocol import ProblemH11Protocol
 
-    uvicorn.run(create_app(context), host=host, port=port, log_level="info", access_log=False)
+    uvicorn.run(
+        create_app(context), host=host, port=port, log_level="info", access_log=False, http=ProblemH11Protocol
+    )
 
 
 @app.command()
