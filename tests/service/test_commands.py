@@ -288,3 +288,36 @@ def test_upgrading_a_database_keeps_its_rows_and_never_reuses_an_id(tmp_path: Pa
         next_id = new.execute("SELECT max(id) FROM captures").fetchone()[0]
     assert kept == [(1, None), (2, None)]  # owned by no key: open to every capture key, as before
     assert next_id == 4
+
+
+@pytest.mark.parametrize("ending", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+@pytest.mark.parametrize("command", ["serve", "worker"])
+def test_serve_and_worker_asked_to_stop_end_in_order(
+    tmp_path: Path, command: str, ending: signal.Signals
+) -> None:
+    """As systemd, docker stop or Ctrl-C would stop them: ended within the time a service manager gives,
+    without a traceback or a fatal error (a worker hands a running job back: test_worker.py)."""
+    environment = {**os.environ, "CANOPY_DATA_DIR": str(tmp_path / "data")}
+    migrated = subprocess.run(
+        [CANOPY, "keys", "create", "--scope", "admin", "--init"],
+        env=environment,
+        capture_output=True,
+        check=False,
+    )
+    assert migrated.returncode == 0, migrated.stderr
+    port = free_port()
+    arguments = ["serve", "--port", str(port)] if command == "serve" else ["worker"]
+    process = subprocess.Popen(
+        [CANOPY, *arguments], env=environment, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
+    )
+    assert process.stdout is not None
+    ready = "Application startup complete" if command == "serve" else "waiting for jobs"
+    lines = []
+    while ready not in "".join(lines):
+        line = process.stdout.readline()
+        assert line, f"canopy {command} ended: {''.join(lines)}"
+        lines.append(line)
+    process.send_signal(ending)
+    output, _ = process.communicate(timeout=STOP_WITHIN_S)
+    assert "Traceback" not in output and "Fatal Python error" not in output, output
+    assert process.returncode in (0, -ending), output  # serve ends by the signal itself, as uvicorn does
