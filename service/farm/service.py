@@ -20,6 +20,7 @@ from service.farm.schemas import MeasurementSummary, OrchardOut, RowOut, TreeOut
 from service.models import Capture, Measurement, Orchard, Row, Tree, utc_text
 from service.pagination import Page, keyset, page_of
 from service.problems import NotFound
+from service.spreadsheet import safe_cell
 
 __all__ = [
     "CSV_COLUMNS",
@@ -247,7 +248,8 @@ def measurements_csv_etag(
 def measurements_csv(
     session: Session, *, orchard: str | None, row: str | None, since: datetime | None
 ) -> Iterator[str]:
-    """CSV text, header first, of every measurement matching the filters, by orchard, row, tree, time."""
+    """CSV text, header first, of every measurement matching the filters, by orchard, row, tree, time;
+    names that a spreadsheet would run as formulas are written as text (:func:`safe_cell`)."""
     query = _csv_query(orchard, row, since).order_by(
         Orchard.name, Row.name, Tree.name, Capture.captured_at, Measurement.id
     )
@@ -265,7 +267,9 @@ def measurements_csv(
             "capture_id": measurement.capture_id,
             "job_id": measurement.job_id,
         }
-        writer.writerow([identity.get(column, measurement.result.get(column)) for column in CSV_COLUMNS])
+        writer.writerow(
+            [safe_cell(identity.get(column, measurement.result.get(column))) for column in CSV_COLUMNS]
+        )
         yield buffer.getvalue()
         buffer.seek(0)
         buffer.truncate()

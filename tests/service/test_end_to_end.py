@@ -247,3 +247,21 @@ def test_the_csv_s_etag_changes_when_a_measurement_is_added(
     assert after.status_code == 200
     assert after.headers["etag"] != before
     assert len(list(csv.DictReader(io.StringIO(after.text)))) == 2
+
+
+def test_csv_cells_a_spreadsheet_would_run_as_formulas_are_written_as_text(
+    service: Service, measured: dict[str, object], tree_capture: Path, tmp_path: Path
+) -> None:
+    """Names come from the field: opened in a spreadsheet, '=HYPERLINK(...)' must show as text."""
+    names = {"orchard": '=HYPERLINK("http://evil.example","Open")', "row": "+R1-2", "tree": "@T-7"}
+    hostile = Path(shutil.copytree(tree_capture, tmp_path / "hostile"))
+    manifest = json.loads((hostile / "capture.json").read_text())
+    (hostile / "capture.json").write_text(json.dumps({**manifest, **names}))
+    with service.client() as client:
+        capture_id = upload_capture(client, hostile)
+        job = wait_for_job(client, client.post(f"/v1/captures/{capture_id}/jobs").headers["location"])
+        assert job["state"] == "succeeded", job
+        export = client.get("/v1/measurements.csv", params={"orchard": names["orchard"]}).text
+    [line] = list(csv.DictReader(io.StringIO(export)))
+    assert {key: line[key] for key in names} == {key: "'" + value for key, value in names.items()}
+    assert float(line["height_m"]) > 0  # numbers stay numbers
