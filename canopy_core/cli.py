@@ -74,7 +74,7 @@ def measure(
     result = run_measure(capture)
     if cloud is not None:
         try:
-            write_ply(cloud, result.cloud_points_m, result.cloud_colors_rgb)
+            write_ply(cloud, result.cloud)
         except OSError as exc:
             raise CanopyError(f"cannot write the cloud to {cloud}: {exc}", field="--cloud") from exc
     if as_json:

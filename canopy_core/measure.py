@@ -29,6 +29,7 @@ from canopy_core.ball_selection import (
 )
 from canopy_core.balls import ViewBallCandidates, find_ball_candidates
 from canopy_core.capture import Capture, CaptureManifest, View, load_capture
+from canopy_core.cloud_io import Cloud, PointClass
 from canopy_core.config import FilterConfig, MeasureConfig
 from canopy_core.errors import CaptureError, ConfigError, MeasurementError, RegistrationFailed
 from canopy_core.filters import reliable_depth_mask, sparse_point_mask
@@ -119,8 +120,8 @@ class Measurement:
     views: tuple[ViewDiagnostics, ...]
     ground: GroundFrame
     config: MeasureConfig
-    cloud_points_m: np.ndarray = field(repr=False)
-    cloud_colors_rgb: np.ndarray = field(repr=False)
+    cloud: Cloud = field(repr=False)
+    """Every view's points in the region of interest, in the world frame, with the view and class of each."""
     timings_s: dict[str, float]
 
     @property
@@ -281,7 +282,7 @@ def measure(
 
     stages.start("metrics")
     trunk_xy = np.array(ground.trunk_xy_m)
-    tree_masks = _tree_masks(
+    tree_masks, point_classes = _tree_masks(
         roi_points,
         [pose[:3, 3] for pose in world_from_view],
         apply(ground.world_from_reference, centres[0]),
@@ -313,8 +314,14 @@ def measure(
         views=diagnostics,
         ground=ground,
         config=config,
-        cloud_points_m=np.concatenate(roi_points),
-        cloud_colors_rgb=np.concatenate(roi_colors),
+        cloud=Cloud(
+            np.concatenate(roi_points),
+            np.concatenate(roi_colors),
+            views=np.concatenate(
+                [np.full(len(points), i, dtype=np.uint8) for i, points in enumerate(roi_points)]
+            ),
+            classes=np.concatenate(point_classes),
+        ),
         timings_s=stages.timings_s,
     )
 
@@ -541,10 +548,11 @@ def _tree_masks(
     balls_world: np.ndarray,
     trunk_xy: np.ndarray,
     config: MeasureConfig,
-) -> list[np.ndarray]:
+) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """Per view, the points of the tree: above the local ground's clearance, off the balls, off the trellis
     wires (each view's mixed pixels of a wire lie in the plane through the wire and its camera centre,
-    ``cameras_m``, world frame), not intruders.
+    ``cameras_m``, world frame), not intruders; and every point's :class:`PointClass` (tree, ground, ball,
+    or other).
 
     The ground height map, the wires and the intruders are decided on all views together, where each is most
     complete. Wires go first: they join the crown to the posts and the neighbours they pass through.
@@ -552,12 +560,17 @@ def _tree_masks(
     ground_map = ground_height_map(
         np.concatenate(roi_points), radius_m=config.roi.radius_m, band_m=config.ground.search_band_m
     )
-    masks = []
+    masks, classes = [], []
     for points in roi_points:
-        mask = ground_map.height_above(points) > _TREE_CLEARANCE_M
+        above = ground_map.height_above(points) > _TREE_CLEARANCE_M
+        off_balls = np.ones(points.shape[0], dtype=bool)
         for centre in balls_world:
-            mask &= np.linalg.norm(points - centre, axis=1) > config.balls.radius_m * 1.5 + 0.02
-        masks.append(mask)
+            off_balls &= np.linalg.norm(points - centre, axis=1) > config.balls.radius_m * 1.5 + 0.02
+        kinds = np.full(points.shape[0], PointClass.OTHER, dtype=np.uint8)
+        kinds[~above] = PointClass.GROUND
+        kinds[~off_balls] = PointClass.BALL
+        masks.append(above & off_balls)
+        classes.append(kinds)
     per_view = [points[mask] for points, mask in zip(roi_points, masks, strict=True)]
     candidates = np.concatenate(per_view)
     wires = find_wires(
@@ -586,9 +599,10 @@ def _tree_masks(
         candidates[off_wires], trunk_xy, roi_radius_m=config.roi.radius_m, link_m=config.roi.link_m
     )
     splits = np.cumsum([np.count_nonzero(mask) for mask in masks])[:-1]
-    for mask, keep in zip(masks, np.split(connected, splits), strict=True):
+    for mask, keep, kinds in zip(masks, np.split(connected, splits), classes, strict=True):
         mask[mask] = keep
-    return masks
+        kinds[mask] = PointClass.TREE
+    return masks, classes
 
 
 def depth_footprint_m(points_m: np.ndarray, *, world_from_view: np.ndarray, focal_px: float) -> np.ndarray:

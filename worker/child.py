@@ -80,9 +80,9 @@ def run_measurement(connection: Connection, lifeline: Connection, spec: Measurem
         progress("load", 0.0)
         capture = read_capture(stored_manifest(spec.manifest), read, max_pixels=spec.max_pixels, stored=True)
         result = measure(capture, overrides=spec.overrides, progress=progress)
-        cloud_sha256 = store.put(ply_bytes(result.cloud_points_m, result.cloud_colors_rgb))
+        cloud_sha256 = store.put(ply_bytes(result.cloud))
         document = json.loads(result.to_json())
-        connection.send(("ok", document, cloud_sha256, int(result.cloud_points_m.shape[0])))
+        connection.send(("ok", document, cloud_sha256, len(result.cloud)))
     except OutOfSpace as exc:
         connection.send(("no_space", str(exc)))
     except CanopyError as exc:

@@ -2,14 +2,18 @@
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Iterator
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Query, Request, Response
 from fastapi.responses import FileResponse, StreamingResponse
 
+from canopy_core.cloud_io import read_cloud
+from service.captures.service import get_capture
 from service.conventions import ItemId, SinceQuery, strong_etag, unchanged
 from service.deps import ContextDep, ReadKey
+from service.farm.las import las_bytes
 from service.farm.schemas import MeasurementSummary, OrchardOut, RowOut, TreeOut
 from service.farm.service import (
     get_measurement,
@@ -25,7 +29,7 @@ from service.farm.service import (
     measurements_csv_etag,
 )
 from service.pagination import CursorQuery, LimitQuery, Page
-from service.problems import ApiError, BadRequest, NotFound, problem_responses
+from service.problems import ApiError, BadRequest, Conflict, InvalidContent, NotFound, problem_responses
 
 __all__ = ["router"]
 
@@ -175,4 +179,73 @@ def cloud(measurement_id: ItemId, request: Request, context: ContextDep, _key: R
         media_type="application/octet-stream",
         filename=f"measurement-{measurement_id}.ply",
         headers={"ETag": etag},
+    )
+
+
+_LAS_TYPES = {"las": "application/vnd.las", "laz": "application/vnd.laszip"}
+
+
+@router.get(
+    "/measurements/{measurement_id}/cloud.{kind}",
+    response_class=Response,
+    responses=problem_responses(
+        NotFound,
+        Conflict,
+        InvalidContent,
+        also={
+            200: {
+                "content": {media: {} for media in _LAS_TYPES.values()},
+                "description": "LAS 1.4 or LAZ, metres, RGB and ASPRS classes",
+            }
+        },
+    ),
+)
+def cloud_las(
+    measurement_id: ItemId,
+    kind: Literal["las", "laz"],
+    request: Request,
+    context: ContextDep,
+    _key: ReadKey,
+    view: Annotated[
+        str | None, Query(max_length=200, description="Only the points this view saw, e.g. views/1")
+    ] = None,
+) -> Response:
+    """The fused cloud as LAS 1.4 (``cloud.las``) or LAZ (``cloud.laz``), each point classed ground (2),
+    tree (5), calibration ball (64) or other (1); with ``view``, that view's points alone."""
+    with context.database.reading() as session:
+        record = get_measurement(session, measurement_id)
+        views = list(get_capture(session, record.capture_id).manifest["views"])
+    if view is not None and view not in views:
+        raise InvalidContent(
+            f"measurement {measurement_id} has no view {view!r}; its views are {', '.join(views)}",
+            code="unknown_view",
+            field="view",
+        )
+    etag = strong_etag(hashlib.sha256(f"{record.cloud_sha256}|{kind}|{view}".encode()).hexdigest())
+    not_modified = unchanged(request, etag)
+    if not_modified is not None:
+        return not_modified
+    try:
+        cloud = read_cloud(context.store.read(record.cloud_sha256))
+    except FileNotFoundError as missing:
+        raise ApiError(
+            f"the fused cloud of measurement {measurement_id} is missing from the blob store"
+        ) from missing
+    if view is not None:
+        if cloud.views is None:
+            raise Conflict(
+                f"measurement {measurement_id} was made before clouds recorded which view saw each point; "
+                "measure its capture again for clouds per view",
+                code="cloud_without_views",
+                field="view",
+            )
+        cloud = cloud.only(cloud.views == views.index(view))
+    suffix = "" if view is None else "-" + view.replace("/", "-")
+    return Response(
+        las_bytes(cloud, compressed=kind == "laz"),
+        media_type=_LAS_TYPES[kind],
+        headers={
+            "ETag": etag,
+            "Content-Disposition": f'attachment; filename="measurement-{measurement_id}{suffix}.{kind}"',
+        },
     )

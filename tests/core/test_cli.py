@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from canopy_core.cloud_io import read_ply
+from canopy_core.cloud_io import read_cloud
 from tests.core.edits import take_away_blue_ball
 
 CANOPY = str(Path(sys.executable).with_name("canopy"))
@@ -44,9 +44,10 @@ def test_measure_json_prints_merged_metrics_modes_and_registration(capture: Path
         assert set(document["modes"]) == {"views/1", "views/2", "merged"}
         assert document["modes"]["merged"][key] == document[key]
     assert "views/2" in document["registration"]["views"]
-    points, colors = read_ply(cloud)
+    written = read_cloud(cloud)
+    points = written.points_m
     assert cloud.read_bytes().startswith(b"ply\nformat binary_little_endian")
-    assert points.shape[0] > 1000 and colors is not None
+    assert points.shape[0] > 1000 and written.colors_rgb is not None
     assert points[:, 2].max() == pytest.approx(document["height_m"], abs=0.1)
 
 

@@ -12,10 +12,11 @@ from collections.abc import Iterator
 from datetime import datetime, timedelta, timezone
 from pathlib import Path
 
+import laspy
 import numpy as np
 import pytest
 
-from canopy_core.cloud_io import read_ply
+from canopy_core.cloud_io import read_cloud
 from canopy_core.measure import measure
 from tests.service.running import Service, start_service, upload_capture, wait_for_job
 
@@ -115,10 +116,13 @@ def test_fused_cloud_downloads_as_binary_ply(
     assert cloud.status_code == 200
     assert cloud.content.startswith(b"ply\nformat binary_little_endian 1.0\n")
     (tmp_path / "cloud.ply").write_bytes(cloud.content)
-    points, colors = read_ply(tmp_path / "cloud.ply")
+    stored = read_cloud(tmp_path / "cloud.ply")
+    points = stored.points_m
     assert points.shape == (measurement["cloud"]["points"], 3)
-    assert colors is not None
-    height_above_ground = points[:, 2].max()
+    assert stored.colors_rgb is not None
+    assert stored.views is not None and set(np.unique(stored.views)) == {0, 1}
+    assert stored.classes is not None and {2, 5, 64} <= set(np.unique(stored.classes))
+    height_above_ground = points[stored.classes == 5, 2].max()
     assert height_above_ground == pytest.approx(measurement["height_m"], abs=0.1)
     assert np.isfinite(points).all()
 
@@ -265,3 +269,36 @@ def test_csv_cells_a_spreadsheet_would_run_as_formulas_are_written_as_text(
     [line] = list(csv.DictReader(io.StringIO(export)))
     assert {key: line[key] for key in names} == {key: "'" + value for key, value in names.items()}
     assert float(line["height_m"]) > 0  # numbers stay numbers
+
+
+def test_the_cloud_comes_as_las_and_laz_with_colours_and_classes_and_per_view(
+    service: Service, measured: dict[str, object]
+) -> None:
+    measurement = measured["measurement"]
+    assert isinstance(measurement, dict)
+    base = f"/v1/measurements/{measurement['id']}"
+    with service.client() as client:
+        ply = read_cloud(client.get(measurement["cloud"]["href"]).content)
+        las = client.get(f"{base}/cloud.las")
+        laz = client.get(f"{base}/cloud.laz")
+        first_view = client.get(f"{base}/cloud.laz", params={"view": "views/1"})
+        unknown_view = client.get(f"{base}/cloud.las", params={"view": "views/9"})
+        again = client.get(f"{base}/cloud.las", headers={"If-None-Match": las.headers["etag"]})
+    assert (las.headers["content-type"], laz.headers["content-type"]) == (
+        "application/vnd.las",
+        "application/vnd.laszip",
+    )
+    whole, compressed, one_view = (
+        laspy.read(io.BytesIO(answer.content)) for answer in (las, laz, first_view)
+    )
+    assert whole.header.version.minor == 4 and len(laz.content) < len(las.content)
+    assert len(whole.points) == len(compressed.points) == len(ply) == measurement["cloud"]["points"]
+    coordinates = np.column_stack([whole.x, whole.y, whole.z])
+    assert np.abs(coordinates - ply.points_m).max() <= 0.0006  # stored at millimetre resolution
+    assert ply.colors_rgb is not None and ply.classes is not None and ply.views is not None
+    assert np.array_equal(np.asarray(whole.red) // 257, ply.colors_rgb[:, 0])
+    assert np.array_equal(np.asarray(compressed.classification), ply.classes)
+    assert {2, 5, 64} <= set(np.unique(np.asarray(whole.classification)))
+    assert len(one_view.points) == int(np.count_nonzero(ply.views == 0)) < len(ply)
+    assert unknown_view.status_code == 422 and unknown_view.json()["code"] == "unknown_view"
+    assert again.status_code == 304
