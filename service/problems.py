@@ -88,9 +88,8 @@ class RequestTimeout(ApiError):
 
     def __init__(self, detail: str, **members: Any) -> None:
         super().__init__(detail, **members)
-        self.headers = {
-            "Connection": "close"
-        }  # the rest of the body may still come: never read it as a request
+        # The rest of the body may still come: close rather than read it as the next request.
+        self.headers = {"Connection": "close"}
 
 
 class Conflict(ApiError):

@@ -233,6 +233,12 @@ def small_disk(tmp_path: Path) -> Iterator[Path]:
         subprocess.run(["umount", "-l", str(mount_point)], check=False)
 
 
+def _fill_leaving(ballast: Path, free_bytes: int) -> None:
+    """Fill the disk of ``ballast`` with it, leaving about ``free_bytes`` free."""
+    with ballast.open("wb") as fill:
+        fill.write(b"\0" * (shutil.disk_usage(ballast.parent).free - free_bytes))
+
+
 def test_a_disk_that_fills_during_uploads_gets_507_keeps_the_database_and_recovers(
     small_disk: Path, tree_capture: Path
 ) -> None:
@@ -243,8 +249,7 @@ def test_a_disk_that_fills_during_uploads_gets_507_keeps_the_database_and_recove
             capture_id = _create_capture(client, tree_capture)
             files = capture_files(tree_capture)
             stored = _put(client, capture_id, "views/1/camera.json", files["views/1/camera.json"])
-            with ballast.open("wb") as fill:  # everything but about 100 kB of the disk
-                fill.write(b"\0" * (shutil.disk_usage(small_disk).free - 100_000))
+            _fill_leaving(ballast, 100_000)
             # Sent chunked, with no length to check first: the disk fills while the file is written.
             depth = files["views/1/depth.png"]
             refused = client.put(
@@ -279,8 +284,7 @@ def test_a_worker_that_cannot_store_its_cloud_hands_the_job_back_instead_of_fail
         with service.client() as client:
             capture_id = upload_capture(client, tree_capture)
             job_url = client.post(f"/v1/captures/{capture_id}/jobs").headers["location"]
-            with ballast.open("wb") as fill:  # room for the database's writes, not for a fused cloud
-                fill.write(b"\0" * (shutil.disk_usage(small_disk).free - 300_000))
+            _fill_leaving(ballast, 300_000)  # room for the database's writes, not for a fused cloud
             service.start_worker()
             log = service.data_dir / "worker-0.log"
             deadline = time.monotonic() + 120
