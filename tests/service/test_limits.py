@@ -5,6 +5,7 @@ are removed. Real `canopy serve` and `canopy worker` processes, a real SQLite fi
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import socket
@@ -115,11 +116,18 @@ def test_uploads_beyond_a_keys_share_get_429_and_beyond_the_servers_get_503(
         laptop, other = service.create_key("capture"), service.create_key("capture")
         with service.client(laptop) as client, service.client(other) as other_client:
             capture_id = _create_capture(client, tree_capture)
+            manifest = json.loads((tree_capture / "capture.json").read_text())
+            created = other_client.post("/v1/captures", json={**manifest, "tree": "another tree"})
+            other_capture = created.json()["id"]  # a capture key writes only to captures it created
             with _stalled_uploads(service, laptop, capture_id, files["views/1/depth.png"], count=2):
                 over_share = _put(client, capture_id, "views/1/camera.json", files["views/1/camera.json"])
-                others = _put(other_client, capture_id, "views/1/camera.json", files["views/1/camera.json"])
-                with _stalled_uploads(service, other, capture_id, files["views/1/depth.png"], count=1):
-                    full = _put(other_client, capture_id, "views/2/camera.json", files["views/2/camera.json"])
+                others = _put(
+                    other_client, other_capture, "views/1/camera.json", files["views/1/camera.json"]
+                )
+                with _stalled_uploads(service, other, other_capture, files["views/1/depth.png"], count=1):
+                    full = _put(
+                        other_client, other_capture, "views/2/camera.json", files["views/2/camera.json"]
+                    )
             time.sleep(1.0)  # the stalled connections closed: their slots are free
             after = _put(client, capture_id, "views/2/camera.json", files["views/2/camera.json"])
     finally:
