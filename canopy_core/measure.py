@@ -27,7 +27,7 @@ from canopy_core.ball_selection import (
     far_ball,
     select_balls,
 )
-from canopy_core.balls import ViewBallCandidates, find_ball_candidates
+from canopy_core.balls import BallCandidate, ViewBallCandidates, find_ball_candidates
 from canopy_core.capture import Capture, CaptureManifest, View, load_capture
 from canopy_core.cloud_io import Cloud, PointClass
 from canopy_core.config import FilterConfig, MeasureConfig
@@ -439,7 +439,9 @@ def balls_and_frame(
     than ``balls.max_trunk_distance_m``, or off the ground round the balls (their plane tilted from the
     ground's by more than a slope allows), the sphere taken for it is a look-alike every view saw (an apple
     lying on the ground agrees with itself across views; a fallen apple's centre lies lower than a ball's):
-    the balls are chosen again without it, so the ball is sought where the others place it.
+    the balls are chosen again without it, and without any other sphere that lies as far from the trunk
+    (the same apple fitted twice, its neighbours in a heap), so the ball is sought where the others place
+    it.
 
     Raises
     ------
@@ -453,10 +455,21 @@ def balls_and_frame(
     if misplaced is None:
         return choices, view_to_reference, ground
     color, failure = misplaced
-    without = [
-        replace(view, candidates=tuple(c for c in view.candidates if c is not choice.chosen[color]))
-        for view, choice in zip(candidates, choices, strict=True)
-    ]
+    trunk_xy = np.array(ground.trunk_xy_m)
+    without = []
+    for view, choice, pose in zip(candidates, choices, view_to_reference, strict=True):
+        world_from_view = ground.world_from_reference @ pose
+        without.append(
+            replace(
+                view,
+                candidates=tuple(
+                    candidate
+                    for candidate in view.candidates
+                    if candidate is not choice.chosen[color]
+                    and _round_trunk(candidate, world_from_view, trunk_xy, config.balls.max_trunk_distance_m)
+                ),
+            )
+        )
     try:
         again = select_balls(without, config.balls, grounds=grounds)
     except MeasurementError:
@@ -466,6 +479,14 @@ def balls_and_frame(
         if _misplaced_ball(centres_world, frame, config) is None:
             return again, poses, frame
     raise failure
+
+
+def _round_trunk(
+    candidate: BallCandidate, world_from_view: np.ndarray, trunk_xy_m: np.ndarray, max_distance_m: float
+) -> bool:
+    """Whether a sphere lies within ``max_distance_m`` of the trunk, horizontally, where a ball may lie."""
+    centre = apply(world_from_view, candidate.fit.center_m[None, :])[0]
+    return bool(np.linalg.norm(centre[:2] - trunk_xy_m) <= max_distance_m)
 
 
 def _misplaced_ball(
