@@ -333,13 +333,13 @@ class MetricsConfig(_Section):
         description="The top, and each of the two points whose distance is W, count only with this many "
         "other points within support_radius_m.",
     )
-    width_edge_px: float = Field(
+    edge_px: float = Field(
         0.5,
         ge=0.0,
-        description="W is widened at each end by this many depth pixel pitches (the pitch at that end's "
-        "range): sampled on a pixel grid at a random phase, the last pixel that reads an object lies on "
-        "average half a pitch inside its outline (0.5, from the geometry of sampling; 0 measures the points' "
-        "own extent).",
+        description="Each extreme of the crown (W's two ends, the top, the lowest leaf) is moved outward by "
+        "this many depth pixel pitches (the pitch where it lies): sampled on a pixel grid at a random phase, "
+        "the last pixel that reads an object lies on average half a pitch inside its outline (0.5, from the "
+        "geometry of sampling; 0 measures the points' own extremes).",
     )
     base_support_points: int = Field(
         4, ge=1, description="The crown base counts only with this many other points within support_radius_m."

@@ -35,7 +35,9 @@ __all__ = [
     "crown_mask",
     "ground_rising",
     "height_density",
+    "highest_supported",
     "hull_volume",
+    "lowest_crown_point",
     "max_horizontal_distance",
     "projected_area",
     "voxel_volume",
@@ -77,11 +79,16 @@ class CanopyMetrics:
 def canopy_height(
     points_m: np.ndarray, *, ground_z_m: float = 0.0, support_radius_m: float = 0.05, support_points: int = 4
 ) -> float:
-    """Tree height H = z_max - z_ground (eq. 5), with z_max robust to stray points.
+    """Tree height H = z_max - z_ground (eq. 5), with z_max robust to stray points (see
+    :func:`highest_supported`)."""
+    top = highest_supported(points_m, support_radius_m=support_radius_m, support_points=support_points)
+    return float(points_m[top, 2] - ground_z_m)
 
-    z_max is the highest point with at least ``support_points`` other points within ``support_radius_m``:
-    a lone insect, dust speck or flying pixel above the crown does not raise it.
-    """
+
+def highest_supported(points_m: np.ndarray, *, support_radius_m: float, support_points: int) -> int:
+    """Index of the highest point with at least ``support_points`` other points within
+    ``support_radius_m``: a lone insect, dust speck or flying pixel above the crown is not the top. The
+    highest point when none has that support."""
     z = points_m[:, 2]
     order = np.argsort(-z)
     tree = cKDTree(points_m)
@@ -90,9 +97,8 @@ def canopy_height(
         neighbours = tree.query_ball_point(points_m[batch], r=support_radius_m, return_length=True) - 1
         supported = np.flatnonzero(neighbours >= support_points)
         if supported.size:
-            return float(z[batch[supported[0]]] - ground_z_m)
-    z_max = z.max()
-    return float(z_max - ground_z_m)
+            return int(batch[supported[0]])
+    return int(order[0])
 
 
 def max_horizontal_distance(
@@ -373,19 +379,28 @@ def _bodies(points_m: np.ndarray, *, link_m: float) -> tuple[np.ndarray, np.ndar
 def crown_base_geometric(
     points_m: np.ndarray, crown: np.ndarray, *, support_radius_m: float, support_points: int
 ) -> float:
-    """Crown base: the lowest supported point of the crown (``crown`` mask, see :func:`crown_mask`).
+    """Crown base: the height of the lowest supported point of the crown (see :func:`lowest_crown_point`)."""
+    lowest = lowest_crown_point(
+        points_m, crown, support_radius_m=support_radius_m, support_points=support_points
+    )
+    return float(points_m[lowest, 2])
 
-    A point counts only with ``support_points`` crown neighbours within ``support_radius_m``, so no stray
-    point sets the base. Without crown points, the lowest point.
-    """
-    candidates = points_m[crown]
-    if candidates.shape[0] == 0:
-        return float(points_m[:, 2].min())
+
+def lowest_crown_point(
+    points_m: np.ndarray, crown: np.ndarray, *, support_radius_m: float, support_points: int
+) -> int:
+    """Index of the lowest point of the crown (``crown`` mask, see :func:`crown_mask`) with at least
+    ``support_points`` crown neighbours within ``support_radius_m``, so no stray point sets the base.
+    Without crown points, the lowest point."""
+    members = np.flatnonzero(crown)
+    if members.size == 0:
+        return int(np.argmin(points_m[:, 2]))
+    candidates = points_m[members]
     order = np.argsort(candidates[:, 2])[:5000]
     tree = cKDTree(candidates)
     neighbours = tree.query_ball_point(candidates[order], r=support_radius_m, return_length=True) - 1
     supported = np.flatnonzero(neighbours >= support_points)
-    return float(candidates[order[supported[0]], 2] if supported.size else candidates[order[0], 2])
+    return int(members[order[supported[0]] if supported.size else order[0]])
 
 
 def crown_diameters(points_m: np.ndarray) -> tuple[float, float]:
@@ -435,9 +450,9 @@ def canopy_metrics(
     counts the points given.
 
     ``pixel_footprint_m`` is each point's depth pixel pitch where it lies (its depth over the focal length
-    of the camera that saw it). The last pixel that reads the crown at either end of W lies on average
-    half a pitch inside the crown's true outline, so W grows by ``config.width_edge_px`` pitches at each
-    end; without footprints, W is the points' own extent.
+    of the camera that saw it). The last pixel that reads the crown at an extreme (either end of W, the
+    top, the lowest leaf) lies on average half a pitch inside the crown's true outline, so each extreme is
+    moved out by ``config.edge_px`` pitches there; without footprints, the points' own extremes count.
     """
     candidates = crown_candidates(
         points_m, trunk_xy_m, foliage=foliage, min_radius_m=config.crown_base_min_radius_m
@@ -456,26 +471,33 @@ def canopy_metrics(
             hint="check that the tree's crown is in view and inside roi.radius_m",
         )
     tree_points = points_m[kept]
-    height = canopy_height(
+    edge_m = (
+        config.edge_px * pixel_footprint_m[kept]
+        if pixel_footprint_m is not None
+        else np.zeros(tree_points.shape[0])
+    )
+    top = highest_supported(
         tree_points, support_radius_m=config.support_radius_m, support_points=config.top_support_points
     )
+    height = float(tree_points[top, 2] + edge_m[top])
     base_kde = crown_base_kde(
         tree_points[:, 2], height_m=height, bandwidth_m=config.kde_bandwidth_m, threshold=config.kde_threshold
     )
-    base_geometric = crown_base_geometric(
+    lowest = lowest_crown_point(
         tree_points,
         crown[kept],
         support_radius_m=config.support_radius_m,
         support_points=config.base_support_points,
     )
-    upper = tree_points[tree_points[:, 2] >= base_geometric]
+    base_geometric = float(tree_points[lowest, 2] - edge_m[lowest])
+    upper = tree_points[tree_points[:, 2] >= tree_points[lowest, 2]]
     along, across = crown_diameters(upper)
     first, second = widest_pair(
         tree_points, support_radius_m=config.support_radius_m, support_points=config.top_support_points
     )
-    width = float(np.linalg.norm(tree_points[first, :2] - tree_points[second, :2]))
-    if pixel_footprint_m is not None:
-        width += config.width_edge_px * float(pixel_footprint_m[kept][[first, second]].sum())
+    width = float(
+        np.linalg.norm(tree_points[first, :2] - tree_points[second, :2]) + edge_m[[first, second]].sum()
+    )
     return CanopyMetrics(
         height_m=height,
         width_m=width,

@@ -66,33 +66,37 @@ def test_width_ignores_height() -> None:
     assert max_horizontal_distance(points) == pytest.approx(np.sqrt(2.0))
 
 
-def _sampled_hedge(phase_m: float, *, pitch_m: float, length_m: float) -> np.ndarray:
-    """A crown 1 m tall and length_m long along x, as a camera with pixels pitch_m apart reads it: the
-    last sample inside each end lies anywhere up to a pitch short of it."""
-    x = np.arange(phase_m - length_m / 2, length_m / 2, pitch_m)
-    z = np.arange(1.0, 2.0, pitch_m)
-    grid = np.stack(np.meshgrid(x, [0.0], z, indexing="ij"), axis=-1).reshape(-1, 3)
-    return grid[np.abs(grid[:, 0]) <= length_m / 2]
+def _sampled_hedge(phase_m: tuple[float, float], *, pitch_m: float, length_m: float) -> np.ndarray:
+    """A crown from 1 m to 2 m high and length_m long along x, as a camera with pixels pitch_m apart reads
+    it: the last sample inside each extreme lies anywhere up to a pitch short of it."""
+    x = np.arange(phase_m[0] - length_m / 2, length_m / 2, pitch_m)
+    z = np.arange(1.0 + phase_m[1], 2.0, pitch_m)
+    return np.stack(np.meshgrid(x, [0.0], z, indexing="ij"), axis=-1).reshape(-1, 3)
 
 
-def test_width_adds_half_a_pixel_at_each_end_so_it_is_unbiased_over_sampling_phases() -> None:
+def test_each_extreme_moves_out_half_a_pixel_so_w_h_and_d_are_unbiased_over_sampling_phases() -> None:
     pitch, length = 0.01, 1.6
-    plain, corrected = [], []
-    for phase in np.random.default_rng(9).uniform(0.0, pitch, size=60):
-        hedge = _sampled_hedge(phase, pitch_m=pitch, length_m=length)
+    plain: list[CanopyMetrics] = []
+    corrected: list[CanopyMetrics] = []
+    for phase in np.random.default_rng(9).uniform(0.0, pitch, size=(60, 2)):
+        hedge = _sampled_hedge((phase[0], phase[1]), pitch_m=pitch, length_m=length)
         everything = np.ones(hedge.shape[0], dtype=bool)
-        for widths, footprint in ((plain, None), (corrected, np.full(hedge.shape[0], pitch))):
-            metrics = canopy_metrics(
-                hedge,
-                trunk_xy_m=np.zeros(2),
-                crown=everything,
-                pixel_footprint_m=footprint,
-                config=MetricsConfig(),
+        for results, footprint in ((plain, None), (corrected, np.full(hedge.shape[0], pitch))):
+            results.append(
+                canopy_metrics(
+                    hedge,
+                    trunk_xy_m=np.zeros(2),
+                    crown=everything,
+                    pixel_footprint_m=footprint,
+                    config=MetricsConfig(),
+                )
             )
-            widths.append(metrics.width_m)
-    assert np.mean(plain) == pytest.approx(length - pitch, abs=0.1 * pitch)  # half a pitch short at each end
-    assert np.mean(corrected) == pytest.approx(length, abs=0.1 * pitch)
-    assert np.max(corrected) <= length + pitch  # never more than the half pitch beyond at either end
+    for results, short in ((plain, pitch / 2), (corrected, 0.0)):  # half a pitch short at each extreme
+        assert np.mean([m.width_m for m in results]) == pytest.approx(length - 2 * short, abs=0.1 * pitch)
+        assert np.mean([m.height_m for m in results]) == pytest.approx(2.0 - short, abs=0.1 * pitch)
+        assert np.mean([m.crown_base_m for m in results]) == pytest.approx(1.0 + short, abs=0.1 * pitch)
+        assert np.mean([m.thickness_m for m in results]) == pytest.approx(1.0 - 2 * short, abs=0.1 * pitch)
+    assert max(m.width_m for m in corrected) <= length + pitch  # never more than half a pitch past an end
 
 
 def test_kde_crown_base_finds_where_the_crown_starts_above_a_sparse_trunk() -> None:
