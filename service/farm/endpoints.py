@@ -14,7 +14,7 @@ from service.captures.service import get_capture
 from service.conventions import ItemId, SinceQuery, strong_etag, unchanged
 from service.deps import ContextDep, ReadKey
 from service.farm.las import las_bytes
-from service.farm.schemas import MeasurementSummary, OrchardOut, RowOut, TreeOut
+from service.farm.schemas import MeasurementSummary, OrchardOut, OrchardSummary, RowOut, Summary, TreeOut
 from service.farm.service import (
     get_measurement,
     get_orchard,
@@ -28,6 +28,7 @@ from service.farm.service import (
     measurements_csv,
     measurements_csv_etag,
 )
+from service.farm.summaries import orchard_summary, row_summary, summary_csv
 from service.pagination import CursorQuery, LimitQuery, Page
 from service.problems import ApiError, BadRequest, Conflict, InvalidContent, NotFound, problem_responses
 
@@ -248,4 +249,54 @@ def cloud_las(
             "ETag": etag,
             "Content-Disposition": f'attachment; filename="measurement-{measurement_id}{suffix}.{kind}"',
         },
+    )
+
+
+@router.get("/rows/{row_id}/summary", response_model=Summary, responses=problem_responses(NotFound))
+def row_summary_json(row_id: ItemId, context: ContextDep, _key: ReadKey) -> Summary:
+    """Per metric (H, W, D, crown volume, projected area), count, mean, median, min, max and standard
+    deviation over the latest measurement of each tree of the row; the trees beyond 2 standard deviations."""
+    with context.database.reading() as session:
+        return row_summary(session, row_id)
+
+
+@router.get(
+    "/orchards/{orchard_id}/summary", response_model=OrchardSummary, responses=problem_responses(NotFound)
+)
+def orchard_summary_json(orchard_id: ItemId, context: ContextDep, _key: ReadKey) -> OrchardSummary:
+    """The row summary's figures over the whole orchard, then for each of its rows."""
+    with context.database.reading() as session:
+        return orchard_summary(session, orchard_id)
+
+
+_SUMMARY_CSV = problem_responses(
+    NotFound, also={200: {"content": {"text/csv": {}}, "description": "One line per scope and metric"}}
+)
+
+
+@router.get("/rows/{row_id}/summary.csv", response_class=Response, responses=_SUMMARY_CSV)
+def row_summary_csv(row_id: ItemId, request: Request, context: ContextDep, _key: ReadKey) -> Response:
+    """The row's summary as CSV."""
+    with context.database.reading() as session:
+        return _csv_answer(request, summary_csv(row_summary(session, row_id)), f"row-{row_id}-summary.csv")
+
+
+@router.get("/orchards/{orchard_id}/summary.csv", response_class=Response, responses=_SUMMARY_CSV)
+def orchard_summary_csv(orchard_id: ItemId, request: Request, context: ContextDep, _key: ReadKey) -> Response:
+    """The orchard's summary and its rows' as CSV."""
+    with context.database.reading() as session:
+        text = summary_csv(orchard_summary(session, orchard_id))
+    return _csv_answer(request, text, f"orchard-{orchard_id}-summary.csv")
+
+
+def _csv_answer(request: Request, text: str, filename: str) -> Response:
+    """A CSV body with its ETag (304 when the client has it)."""
+    etag = strong_etag(hashlib.sha256(text.encode()).hexdigest())
+    not_modified = unchanged(request, etag)
+    if not_modified is not None:
+        return not_modified
+    return Response(
+        text,
+        media_type="text/csv; charset=utf-8",
+        headers={"ETag": etag, "Content-Disposition": f'attachment; filename="{filename}"'},
     )

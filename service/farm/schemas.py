@@ -6,7 +6,16 @@ from datetime import datetime
 
 from pydantic import BaseModel
 
-__all__ = ["MeasurementSummary", "OrchardOut", "RowOut", "TreeOut"]
+__all__ = [
+    "MeasurementSummary",
+    "MetricStats",
+    "OrchardOut",
+    "OrchardSummary",
+    "Outlier",
+    "RowOut",
+    "Summary",
+    "TreeOut",
+]
 
 
 class OrchardOut(BaseModel):
@@ -45,3 +54,48 @@ class TreeOut(BaseModel):
     name: str
     created_at: datetime
     latest_measurement: MeasurementSummary | None
+
+
+class MetricStats(BaseModel):
+    """One metric over the trees of a row or orchard (its unit is the metric's: m, m², m³)."""
+
+    count: int
+    mean: float
+    median: float
+    min: float
+    max: float
+    std: float | None
+    """Sample standard deviation; None with fewer than two trees."""
+
+
+class Outlier(BaseModel):
+    """A tree whose metric lies more than two standard deviations from the mean of its row or orchard."""
+
+    tree_id: int
+    tree: str
+    row: str
+    metric: str
+    value: float
+    deviations: float
+    """(value - mean) / standard deviation."""
+
+
+class Summary(BaseModel):
+    """The latest measurement of each tree of a row or an orchard, summed up per metric."""
+
+    scope: str
+    """``row`` or ``orchard``."""
+    id: int
+    name: str
+    orchard: str
+    trees: int
+    """Trees in it."""
+    measured_trees: int
+    metrics: dict[str, MetricStats]
+    outliers: list[Outlier]
+
+
+class OrchardSummary(Summary):
+    """An orchard's summary, with each of its rows'."""
+
+    rows: list[Summary]

@@ -28,6 +28,7 @@ __all__ = [
     "get_orchard",
     "get_row",
     "get_tree",
+    "latest_measurements",
     "list_orchards",
     "list_rows",
     "list_tree_measurements",
@@ -132,34 +133,42 @@ def list_trees(
     return page_of(_trees_out(session, trees), [tree.id for tree in trees], limit)
 
 
+def latest_measurements(session: Session, tree_ids: list[int]) -> dict[int, tuple[Measurement, datetime]]:
+    """Per tree, its most recent measurement by capture time (the newest job's, when one capture was
+    measured twice) and that capture time; trees never measured are absent."""
+    latest: dict[int, tuple[Measurement, datetime]] = {}
+    if not tree_ids:
+        return latest
+    newest = (
+        select(Measurement.tree_id, func.max(Capture.captured_at).label("captured_at"))
+        .join(Capture, Capture.id == Measurement.capture_id)
+        .where(Measurement.tree_id.in_(tree_ids))
+        .group_by(Measurement.tree_id)
+        .subquery()
+    )
+    query_latest = (
+        _summaries()
+        .join(
+            newest,
+            (newest.c.tree_id == Measurement.tree_id) & (newest.c.captured_at == Capture.captured_at),
+        )
+        .order_by(Measurement.id)
+    )
+    for measurement, captured_at in session.execute(query_latest):
+        latest[measurement.tree_id] = (measurement, captured_at)  # the newest job wins
+    return latest
+
+
 def _trees_out(session: Session, trees: list[Tree]) -> list[TreeOut]:
     """The trees as the API shows them, each with its most recent measurement by capture time."""
-    latest: dict[int, MeasurementSummary] = {}
-    if trees:
-        newest = (
-            select(Measurement.tree_id, func.max(Capture.captured_at).label("captured_at"))
-            .join(Capture, Capture.id == Measurement.capture_id)
-            .where(Measurement.tree_id.in_([tree.id for tree in trees]))
-            .group_by(Measurement.tree_id)
-            .subquery()
-        )
-        query_latest = (
-            _summaries()
-            .join(
-                newest,
-                (newest.c.tree_id == Measurement.tree_id) & (newest.c.captured_at == Capture.captured_at),
-            )
-            .order_by(Measurement.id)
-        )
-        for measurement, captured_at in session.execute(query_latest):
-            latest[measurement.tree_id] = _summary(measurement, captured_at)  # the newest job wins
+    latest = latest_measurements(session, [tree.id for tree in trees])
     return [
         TreeOut(
             id=tree.id,
             row_id=tree.row_id,
             name=tree.name,
             created_at=tree.created_at,
-            latest_measurement=latest.get(tree.id),
+            latest_measurement=_summary(*latest[tree.id]) if tree.id in latest else None,
         )
         for tree in trees
     ]
