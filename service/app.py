@@ -27,6 +27,7 @@ from service.jobs import endpoints as jobs
 from service.keys import endpoints as keys
 from service.problems import Problem, component_schemas, install_problem_handlers
 from service.settings import Settings
+from service.validation import endpoints as validation
 
 __all__ = ["create_app"]
 
@@ -69,7 +70,7 @@ def create_app(context: Context | None = None) -> FastAPI:
     app.state.admission = Admission(context.settings)
     install_problem_handlers(app)
     app.add_middleware(ConditionalGet)
-    for module in (health, captures, jobs, farm, keys):
+    for module in (health, captures, jobs, farm, keys, validation):
         app.include_router(module.router)
     app.openapi = lambda: _openapi(app)  # type: ignore[method-assign]
     return app

@@ -1,4 +1,5 @@
-"""The system of record: orchards, rows, trees, captures, their files, jobs, measurements and API keys.
+"""The system of record: orchards, rows, trees, captures, their files, jobs, measurements, API keys and the
+measurements a crew took by hand.
 
 Dialect-neutral SQLAlchemy 2 models (SQLite and PostgreSQL). Relationships load nothing implicitly
 (``lazy="raise"``): every query is written where it runs. Constraint names follow one convention so that
@@ -7,7 +8,7 @@ Alembic can alter tables on SQLite.
 
 from __future__ import annotations
 
-from datetime import UTC, datetime
+from datetime import UTC, date, datetime
 from typing import Any, ClassVar
 
 from pydantic import TypeAdapter
@@ -23,6 +24,7 @@ __all__ = [
     "Capture",
     "CaptureFile",
     "Job",
+    "ManualMeasurement",
     "Measurement",
     "Orchard",
     "Row",
@@ -214,3 +216,23 @@ class ApiKey(Base):
     revoked_at: Mapped[datetime | None]
     expires_at: Mapped[datetime | None]
     """After this instant the key is refused; None: it does not expire."""
+
+
+class ManualMeasurement(Base):
+    """A tree's height, width and crown thickness measured by hand on one day, to judge the measurements by
+    (the paper's Table 1). Named by orchard, row and tree rather than linked: a crew may enter its tape
+    and pole readings before the tree is ever captured. One record per tree and day; a metric not taken
+    is None."""
+
+    __tablename__ = "manual_measurements"
+    __table_args__ = (UniqueConstraint("orchard", "row", "tree", "measured_on"), _GROWING_IDS)
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    orchard: Mapped[str] = mapped_column(String(200))
+    row: Mapped[str] = mapped_column(String(200))
+    tree: Mapped[str] = mapped_column(String(200))
+    measured_on: Mapped[date]
+    height_m: Mapped[float | None]
+    width_m: Mapped[float | None]
+    thickness_m: Mapped[float | None]
+    updated_at: Mapped[datetime] = mapped_column(default=utc_now)

@@ -29,7 +29,16 @@ class Settings(BaseSettings):
     max_json_bytes: int = Field(
         1024 * 1024, gt=0, description="Largest accepted capture.json or camera.json body, bytes."
     )
+    max_csv_bytes: int = Field(
+        16 * 1024 * 1024, gt=0, description="Largest accepted CSV of manual measurements, bytes."
+    )
     max_image_pixels: int = Field(DEFAULT_MAX_PIXELS, gt=0, description="Largest accepted image.")
+    validation_window_days: float = Field(
+        14.0,
+        gt=0,
+        description="A manual measurement is compared with the tree's measurement captured nearest to it "
+        "within this many days (a request may ask for another window): a tree grows.",
+    )
     upload_idle_timeout_s: float = Field(
         30.0,
         gt=0,
