@@ -198,6 +198,20 @@ class ViewBallCandidates:
     hsv_ranges: dict[str, list[list[int]]]
     scene: _Scene | None = field(default=None, repr=False, compare=False)
     """The view's points, for :meth:`sphere_near`."""
+    ruled_out_m: tuple[np.ndarray, ...] = field(default=(), repr=False, compare=False)
+    """Centres of spheres shown to be no ball (see :meth:`ruling_out`): none is sought there again."""
+
+    def ruling_out(self, centre_m: np.ndarray, radius_m: float) -> ViewBallCandidates:
+        """These spheres without any within ``radius_m`` of ``centre_m``, where no sphere is sought again:
+        what the choice took for a ball there is a look-alike the views' surfaces contradicted, and a search
+        where the other views place a ball would otherwise fit the same look-alike once more."""
+        return replace(
+            self,
+            candidates=tuple(
+                c for c in self.candidates if np.linalg.norm(c.fit.center_m - centre_m) >= radius_m
+            ),
+            ruled_out_m=(*self.ruled_out_m, np.asarray(centre_m, dtype=float)),
+        )
 
     def sphere_near(self, estimate_m: np.ndarray, color: str, config: BallConfig) -> BallCandidate | None:
         """The sphere of the balls' radius near where the ``color`` ball is expected to be.
@@ -207,7 +221,8 @@ class ViewBallCandidates:
         colour are fitted, or, if that fails, all its points whatever their colour (a ball in deep shade
         is nearly black); the sphere must pass the same geometric checks, but with less of it in view
         (``min_completeness_where_placed``: where a ball is expected, a fragment of a sphere is one), whose
-        free radius it may not fix (``radius_error_sds_where_placed``). None when no sphere holds there.
+        free radius it may not fix (``radius_error_sds_where_placed``). None when no sphere holds there, or
+        the one there was ruled out (:meth:`ruling_out`).
         """
         if self.scene is None:
             return None
@@ -217,6 +232,10 @@ class ViewBallCandidates:
                 estimate_m, index, self.scene, placed, radius_sds=config.radius_error_sds_where_placed
             )
             if candidate is not None and candidate.problem is None:
+                if any(
+                    np.linalg.norm(candidate.fit.center_m - c) < config.radius_m for c in self.ruled_out_m
+                ):
+                    return None
                 return candidate
         return None
 

@@ -11,41 +11,39 @@ from __future__ import annotations
 import json
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from pydantic import ValidationError
 
+from canopy_core.alignment import align_views
 from canopy_core.backproject import ViewCloud, backproject
-from canopy_core.ball_selection import (
-    BallChoice,
-    ball_off_ground,
-    balls_off_ground,
-    balls_off_trunk,
-    far_ball,
-    select_balls,
-)
-from canopy_core.balls import BallCandidate, ViewBallCandidates, find_ball_candidates
+from canopy_core.ball_selection import BallChoice
+from canopy_core.balls import ViewBallCandidates, find_ball_candidates
 from canopy_core.capture import Capture, CaptureManifest, View, load_capture
 from canopy_core.cloud_io import Cloud, PointClass
 from canopy_core.config import FilterConfig, MeasureConfig
 from canopy_core.errors import CaptureError, ConfigError, MeasurementError, RegistrationFailed
-from canopy_core.filters import reliable_depth_mask, sparse_point_mask
+from canopy_core.filters import reliable_depth_mask
 from canopy_core.foliage import foliage_mask
 from canopy_core.ground import (
     CAMERA_UP,
     GroundFrame,
     GroundPlane,
-    fit_ground_frame,
     ground_height_map,
-    horizontal_distance,
     view_ground_plane,
 )
-from canopy_core.metrics import CanopyMetrics, canopy_metrics, crown_candidates, crown_mask
-from canopy_core.refine import IcpRefinement, check_icp_agreement, refine_views
-from canopy_core.register import apply, register_by_balls
+from canopy_core.metrics import (
+    CanopyMetrics,
+    canopy_metrics,
+    crown_candidates,
+    crown_mask,
+    measured_points,
+)
+from canopy_core.refine import IcpRefinement
+from canopy_core.register import apply
 from canopy_core.segment import find_wires, tree_component, wire_mask
 from canopy_core.spheres import SphereFit
 from canopy_core.visibility import seen_through
@@ -56,7 +54,6 @@ __all__ = [
     "Progress",
     "ViewDiagnostics",
     "ball_evidence",
-    "balls_and_frame",
     "config_for",
     "depth_footprint_m",
     "filtered_cloud",
@@ -123,6 +120,8 @@ class Measurement:
     cloud: Cloud = field(repr=False)
     """Every view's points in the region of interest, in the world frame, with the view and class of each."""
     timings_s: dict[str, float]
+    ball_choices: tuple[BallChoice, ...] = field(default=(), repr=False)
+    """Per view, the balls chosen and the spheres rejected with why: what a report draws on each view."""
 
     @property
     def merged(self) -> CanopyMetrics:
@@ -253,32 +252,19 @@ def measure(
     candidates, grounds = ball_evidence(clouds, config)
 
     stages.start("register")
-    choices, view_to_reference, ground = balls_and_frame(clouds, candidates, grounds, config)
+    aligned = align_views(
+        [view.name for view in capture.views],
+        clouds,
+        [view.camera.depth.fx for view in capture.views],
+        candidates,
+        grounds,
+        config,
+        refining=lambda: stages.start("refine"),
+    )
+    choices, ground, world_from_view = aligned.choices, aligned.ground, aligned.world_from_view
+    roi_points, roi_colors = aligned.roi_points_m, aligned.roi_colors_rgb
     balls = [{color: candidate.fit for color, candidate in choice.chosen.items()} for choice in choices]
     centres = [np.array([found[color].center_m for color in colors]) for found in balls]
-    world_from_view = [ground.world_from_reference @ pose for pose in view_to_reference]
-    roi_points, roi_colors, outliers = [], [], []
-    for view, cloud, pose in zip(capture.views, clouds, world_from_view, strict=True):
-        points, colors_rgb, dropped = _roi_cloud(cloud, pose, view.camera.depth.fx, config)
-        roi_points.append(points)
-        roi_colors.append(colors_rgb)
-        outliers.append(dropped)
-
-    stages.start("refine")
-    icp_reports: list[IcpRefinement | None] = [None] * len(clouds)
-    if config.icp.enabled and len(clouds) > 1:
-        corrections, reports = refine_views(
-            [v.name for v in capture.views],
-            [points[points[:, 2] < config.icp.max_height_m] for points in roi_points],
-            view_anchors_m=[apply(pose, c) for pose, c in zip(world_from_view, centres, strict=True)],
-            found_by_position=[bool(choice.found_by_position) for choice in choices],
-            config=config.icp,
-        )
-        check_icp_agreement(reports, config.icp)
-        roi_points = [apply(c, p) for c, p in zip(corrections, roi_points, strict=True)]
-        world_from_view = [c @ pose for c, pose in zip(corrections, world_from_view, strict=True)]
-        by_view = {report.view: report for report in reports}
-        icp_reports = [by_view.get(view.name) for view in capture.views]
 
     stages.start("metrics")
     trunk_xy = np.array(ground.trunk_xy_m)
@@ -289,7 +275,14 @@ def measure(
         trunk_xy,
         config,
     )
-    modes = _modes(capture, roi_points, roi_colors, tree_masks, world_from_view, trunk_xy, config)
+    modes, measured = _modes(capture, roi_points, roi_colors, tree_masks, world_from_view, trunk_xy, config)
+    for kinds, mask, view_measured in zip(
+        point_classes,
+        tree_masks,
+        np.split(measured, np.cumsum([np.count_nonzero(mask) for mask in tree_masks])[:-1]),
+        strict=True,
+    ):
+        kinds[np.flatnonzero(mask)[~view_measured]] = PointClass.OTHER
 
     diagnostics = tuple(
         ViewDiagnostics(
@@ -297,13 +290,13 @@ def measure(
             depth_pixels=depth_pixels[i],
             unreliable_pixels_removed=depth_pixels[i] - len(clouds[i]),
             roi_points=int(roi_points[i].shape[0]),
-            sparse_points_removed=outliers[i],
+            sparse_points_removed=aligned.stray_points_removed[i],
             tree_points=int(np.count_nonzero(tree_masks[i])),
             balls=balls[i],
             balls_found_by_position=choices[i].found_by_position,
-            ball_residual_m=_ball_residual(view_to_reference[i], centres[i], centres[0]),
+            ball_residual_m=_ball_residual(aligned.view_to_reference[i], centres[i], centres[0]),
             world_from_view=world_from_view[i],
-            icp=icp_reports[i],
+            icp=aligned.icp[i],
         )
         for i, view in enumerate(capture.views)
     )
@@ -323,6 +316,7 @@ def measure(
             classes=np.concatenate(point_classes),
         ),
         timings_s=stages.timings_s,
+        ball_choices=tuple(choices),
     )
 
 
@@ -370,8 +364,10 @@ def _modes(
     world_from_view: list[np.ndarray],
     trunk_xy: np.ndarray,
     config: MeasureConfig,
-) -> dict[str, CanopyMetrics]:
-    """The metrics of each view's tree points alone, and of all views merged (the paper's V1, V2, V1+V2).
+) -> tuple[dict[str, CanopyMetrics], np.ndarray]:
+    """The metrics of each view's tree points alone, and of all views merged (the paper's V1, V2, V1+V2);
+    and, over the views' tree points one after the other, the mask of those the merged metrics were read
+    from (:func:`measured_points`).
 
     The crown is told from ground vegetation, suckers, fallen fruit and mixed pixels once, on all views
     together, where the gaps between them are seen best and each view's phantoms are seen through by the
@@ -420,147 +416,12 @@ def _modes(
     modes[MERGED] = _metrics_or_fail(
         merged, merged_foliage, crown, np.concatenate(footprints), trunk_xy, config, view=None
     )
-    return modes
+    measured = measured_points(merged, trunk_xy, crown=crown, foliage=merged_foliage, config=config.metrics)
+    return modes, measured
 
 
 def _ball_residual(pose: np.ndarray, centres: np.ndarray, reference: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.sum((apply(pose, centres) - reference) ** 2, axis=1))))
-
-
-def balls_and_frame(
-    clouds: list[ViewCloud],
-    candidates: list[ViewBallCandidates],
-    grounds: list[GroundPlane | None],
-    config: MeasureConfig,
-) -> tuple[list[BallChoice], list[np.ndarray], GroundFrame]:
-    """The balls chosen in each view, each view's pose in the reference view's frame, and the world frame.
-
-    The crew lays the balls on the ground, 0.3-0.8 m from the trunk. When a ball comes out farther from it
-    than ``balls.max_trunk_distance_m``, or off the ground round the balls (their plane tilted from the
-    ground's by more than a slope allows), the sphere taken for it is a look-alike every view saw (an apple
-    lying on the ground agrees with itself across views; a fallen apple's centre lies lower than a ball's):
-    the balls are chosen again without it, and without any other sphere that lies as far from the trunk
-    (the same apple fitted twice, its neighbours in a heap), so the ball is sought where the others place
-    it.
-
-    Raises
-    ------
-    BallNotFound, RegistrationFailed
-        As :func:`select_balls`; RegistrationFailed naming the ball when no other choice lies round the
-        trunk and on the ground.
-    """
-    choices = select_balls(candidates, config.balls, grounds=grounds)
-    view_to_reference, ground, balls_world = _registered(choices, clouds, config)
-    misplaced = _misplaced_ball(balls_world, ground, config)
-    if misplaced is None:
-        return choices, view_to_reference, ground
-    color, failure = misplaced
-    trunk_xy = np.array(ground.trunk_xy_m)
-    without = []
-    for view, choice, pose in zip(candidates, choices, view_to_reference, strict=True):
-        world_from_view = ground.world_from_reference @ pose
-        without.append(
-            replace(
-                view,
-                candidates=tuple(
-                    candidate
-                    for candidate in view.candidates
-                    if candidate is not choice.chosen[color]
-                    and _round_trunk(candidate, world_from_view, trunk_xy, config.balls.max_trunk_distance_m)
-                ),
-            )
-        )
-    try:
-        again = select_balls(without, config.balls, grounds=grounds)
-    except MeasurementError:
-        again = None
-    if again is not None:
-        poses, frame, centres_world = _registered(again, clouds, config)
-        if _misplaced_ball(centres_world, frame, config) is None:
-            return again, poses, frame
-    raise failure
-
-
-def _round_trunk(
-    candidate: BallCandidate, world_from_view: np.ndarray, trunk_xy_m: np.ndarray, max_distance_m: float
-) -> bool:
-    """Whether a sphere lies within ``max_distance_m`` of the trunk, horizontally, where a ball may lie."""
-    centre = apply(world_from_view, candidate.fit.center_m[None, :])[0]
-    return bool(np.linalg.norm(centre[:2] - trunk_xy_m) <= max_distance_m)
-
-
-def _misplaced_ball(
-    balls_world: np.ndarray, ground: GroundFrame, config: MeasureConfig
-) -> tuple[str, RegistrationFailed] | None:
-    """The colour of a ball that cannot be one, far from the trunk or off the ground, with the failure to
-    raise if no other choice does better; None when the balls lie where balls lie."""
-    trunk_xy = np.array(ground.trunk_xy_m)
-    colors = config.balls.colors
-    far = far_ball(balls_world, trunk_xy, colors, config.balls.max_trunk_distance_m)
-    if far is not None:
-        return far, balls_off_trunk(balls_world, trunk_xy, colors, far)
-    sunk = ball_off_ground(ground, colors, config.balls.radius_m)
-    if sunk is not None:
-        return sunk, balls_off_ground(ground, colors, config.balls.radius_m, sunk)
-    return None
-
-
-def _registered(
-    choices: list[BallChoice], clouds: list[ViewCloud], config: MeasureConfig
-) -> tuple[list[np.ndarray], GroundFrame, np.ndarray]:
-    """Each view's pose in the reference frame from the balls chosen, the world frame, and the reference
-    view's balls in the world frame."""
-    centres = [
-        np.array([choice.chosen[color].fit.center_m for color in config.balls.colors]) for choice in choices
-    ]
-    view_to_reference = [register_by_balls(view_centres, centres[0]) for view_centres in centres]
-    ground = _ground_frame(clouds, view_to_reference, centres[0], config)
-    return view_to_reference, ground, apply(ground.world_from_reference, centres[0])
-
-
-def _ground_frame(
-    clouds: list[ViewCloud],
-    view_to_reference: list[np.ndarray],
-    ball_centres: np.ndarray,
-    config: MeasureConfig,
-) -> GroundFrame:
-    """The world frame, fitted on a thinned sample of all views' points in the reference frame."""
-    rng = np.random.default_rng(0)
-    share = max(1, _GROUND_SAMPLE // len(clouds))
-    sample = []
-    for cloud, pose in zip(clouds, view_to_reference, strict=True):
-        pick = rng.choice(len(cloud), size=min(share, len(cloud)), replace=False)
-        sample.append(apply(pose, cloud.points_m[pick]))
-    return fit_ground_frame(
-        np.concatenate(sample),
-        ball_centres,
-        ball_radius_m=config.balls.radius_m,
-        up_hint=CAMERA_UP,
-        forward_hint=np.array([0.0, 0.0, 1.0]),
-        search_radius_m=config.roi.radius_m,
-        config=config.ground,
-    )
-
-
-def _roi_cloud(
-    cloud: ViewCloud, world_from_view: np.ndarray, focal_px: float, config: MeasureConfig
-) -> tuple[np.ndarray, np.ndarray, int]:
-    """A view's points inside the region of interest, in the world frame, without stray points."""
-    world = apply(world_from_view, cloud.points_m)
-    up = np.array([0.0, 0.0, 1.0])
-    inside = (horizontal_distance(world, np.zeros(3), up) < config.roi.radius_m) & (
-        world[:, 2] < config.roi.max_height_m
-    )
-    inside &= world[:, 2] > -config.ground.search_band_m
-    dense = sparse_point_mask(
-        world[inside],
-        range_m=cloud.points_m[inside, 2],
-        focal_px=focal_px,
-        radius_px=config.filters.sparse_radius_px,
-        min_neighbors=config.filters.sparse_min_neighbors,
-    )
-    kept = np.flatnonzero(inside)[dense]
-    return world[kept], cloud.colors_rgb[kept], int(np.count_nonzero(inside) - kept.size)
 
 
 def _tree_masks(

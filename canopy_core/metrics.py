@@ -14,6 +14,7 @@ crown, not of the lowest green thing, and none of them counts in H, W or the vol
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
+from typing import Any
 
 import numpy as np
 from scipy.sparse import coo_matrix, csr_matrix
@@ -26,6 +27,7 @@ from canopy_core.segment import is_wire_piece
 
 __all__ = [
     "CanopyMetrics",
+    "CrownMarks",
     "canopy_height",
     "canopy_metrics",
     "crown_base_geometric",
@@ -39,7 +41,9 @@ __all__ = [
     "hull_volume",
     "lowest_crown_point",
     "max_horizontal_distance",
+    "measured_points",
     "projected_area",
+    "supported_hull",
     "voxel_volume",
     "widest_pair",
 ]
@@ -55,8 +59,24 @@ lowest point: a piece of the crown does; a weed, sucker or fallen apple reaching
 
 
 @dataclass(frozen=True)
+class CrownMarks:
+    """Where H, W and D were read, in the world frame (m): for the report's figures and its 3D viewer.
+
+    ``top_m`` is the point that sets H, raised by its half pitch (its z is H); ``crown_base_point_m`` the
+    lowest crown point, lowered by its half pitch (its z is the crown base, D = H minus it);
+    ``width_ends_m`` W's two ends on the ground plane, each moved out along W by its half pitch (their
+    distance is W).
+    """
+
+    top_m: tuple[float, float, float]
+    crown_base_point_m: tuple[float, float, float]
+    width_ends_m: tuple[tuple[float, float], tuple[float, float]]
+
+
+@dataclass(frozen=True)
 class CanopyMetrics:
-    """The metrics of one tree cloud (one view, or the merged views). Lengths in m, areas m², volumes m³."""
+    """The metrics of one tree cloud (one view, or the merged views). Lengths in m, areas m², volumes m³;
+    ``marks`` says where the extremes were read."""
 
     height_m: float
     width_m: float
@@ -70,9 +90,10 @@ class CanopyMetrics:
     volume_hull_m3: float
     volume_voxel_m3: float
     points: int
+    marks: CrownMarks
 
-    def to_dict(self) -> dict[str, float | int]:
-        """The metrics as a JSON-ready dict with unit-suffixed keys."""
+    def to_dict(self) -> dict[str, Any]:
+        """The metrics as a JSON-ready dict with unit-suffixed keys, ``marks`` nested."""
         return asdict(self)
 
 
@@ -119,12 +140,29 @@ def widest_pair(
 ) -> tuple[int, int]:
     """Indices of the two points farthest apart projected on the ground: the ends of W (eq. 6).
 
-    Exact: the two farthest points of a set are vertices of its convex hull, so only hull vertices
-    (tens to hundreds) are compared pairwise instead of all N² pairs. With ``support_radius_m``, as for the
-    top (:func:`canopy_height`), a point counts only with ``support_points`` other points within that
-    radius: hull vertices without them are dropped and the hull taken again, so no stray point (a
-    flying pixel, a speck of wire) sets W. ``points_m`` holds at least one point; one point is its own
-    pair.
+    Exact: the two farthest points of a set are vertices of its convex hull, so only the vertices of the
+    supported hull (:func:`supported_hull`, tens to hundreds) are compared pairwise instead of all N²
+    pairs. ``points_m`` holds at least one point; one point is its own pair.
+    """
+    vertices = supported_hull(points_m, support_radius_m=support_radius_m, support_points=support_points)
+    if vertices.size < 3:
+        return int(vertices[0]), int(vertices[-1])
+    xy = points_m[vertices, :2]
+    differences = xy[:, None, :] - xy[None, :, :]
+    first, second = np.unravel_index(np.argmax((differences**2).sum(axis=2)), differences.shape[:2])
+    return int(vertices[first]), int(vertices[second])
+
+
+def supported_hull(
+    points_m: np.ndarray, *, support_radius_m: float | None = None, support_points: int = 0
+) -> np.ndarray:
+    """Indices of the vertices of the convex hull of the points projected on the ground, in order round
+    it, that W is read from.
+
+    With ``support_radius_m``, as for the top (:func:`canopy_height`), a point counts only with
+    ``support_points`` other points within that radius: hull vertices without them are dropped and the
+    hull taken again, so no stray point (a flying pixel, a speck of wire) sets W. Fewer than three points
+    left (or all on a line): those points.
     """
     xy = points_m[:, :2]
     alive = np.ones(points_m.shape[0], dtype=bool)
@@ -142,11 +180,8 @@ def widest_pair(
             alive[stray] = False
     kept = np.flatnonzero(alive)
     if kept.size < 3:
-        return int(kept[0]), int(kept[-1])
-    vertices = kept[_hull_vertices(xy[kept])]
-    differences = xy[vertices][:, None, :] - xy[vertices][None, :, :]
-    first, second = np.unravel_index(np.argmax((differences**2).sum(axis=2)), differences.shape[:2])
-    return int(vertices[first]), int(vertices[second])
+        return kept
+    return kept[_hull_vertices(xy[kept])]
 
 
 def _hull_vertices(xy: np.ndarray) -> np.ndarray:
@@ -454,17 +489,16 @@ def canopy_metrics(
     top, the lowest leaf) lies on average half a pitch inside the crown's true outline, so each extreme is
     moved out by ``config.edge_px`` pitches there; without footprints, the points' own extremes count.
     """
-    candidates = crown_candidates(
-        points_m, trunk_xy_m, foliage=foliage, min_radius_m=config.crown_base_min_radius_m
-    )
     if crown is None:
         crown = crown_mask(
             points_m,
             trunk_xy_m,
-            candidates=candidates,
+            candidates=crown_candidates(
+                points_m, trunk_xy_m, foliage=foliage, min_radius_m=config.crown_base_min_radius_m
+            ),
             config=config,
         )
-    kept = crown | ~candidates
+    kept = measured_points(points_m, trunk_xy_m, crown=crown, foliage=foliage, config=config)
     if not crown.any():
         raise MeasurementError(
             f"no crown among the {points_m.shape[0]} tree points: only ground vegetation, fruit or the trunk",
@@ -495,8 +529,15 @@ def canopy_metrics(
     first, second = widest_pair(
         tree_points, support_radius_m=config.support_radius_m, support_points=config.top_support_points
     )
-    width = float(
-        np.linalg.norm(tree_points[first, :2] - tree_points[second, :2]) + edge_m[[first, second]].sum()
+    ends = tree_points[[first, second], :2]
+    span = float(np.linalg.norm(ends[1] - ends[0]))
+    width = span + float(edge_m[[first, second]].sum())
+    along_w = (ends[1] - ends[0]) / span if span > 0 else np.zeros(2)
+    ends = ends + np.array([-edge_m[first], edge_m[second]])[:, None] * along_w
+    marks = CrownMarks(
+        top_m=(float(tree_points[top, 0]), float(tree_points[top, 1]), height),
+        crown_base_point_m=(float(tree_points[lowest, 0]), float(tree_points[lowest, 1]), base_geometric),
+        width_ends_m=((float(ends[0, 0]), float(ends[0, 1])), (float(ends[1, 0]), float(ends[1, 1]))),
     )
     return CanopyMetrics(
         height_m=height,
@@ -511,4 +552,22 @@ def canopy_metrics(
         volume_hull_m3=hull_volume(upper),
         volume_voxel_m3=voxel_volume(upper, voxel_m=config.voxel_volume_m),
         points=int(points_m.shape[0]),
+        marks=marks,
     )
+
+
+def measured_points(
+    points_m: np.ndarray,
+    trunk_xy_m: np.ndarray,
+    *,
+    crown: np.ndarray,
+    foliage: np.ndarray | None,
+    config: MetricsConfig,
+) -> np.ndarray:
+    """Mask of the points every metric is read from: the crown and what is no crown candidate (the trunk);
+    the candidates apart from the crown (ground vegetation, suckers, fallen fruit, stray points below it)
+    are not the tree."""
+    candidates = crown_candidates(
+        points_m, trunk_xy_m, foliage=foliage, min_radius_m=config.crown_base_min_radius_m
+    )
+    return np.asarray(crown | ~candidates)

@@ -31,6 +31,7 @@ __all__ = [
     "anchored_icp",
     "check_icp_agreement",
     "refine_views",
+    "refinement_bounds",
 ]
 
 _NORMAL_NEIGHBOURS = 20
@@ -232,11 +233,7 @@ def refine_views(
         anchors = view_anchors_m[index]
         ball_shift = float(np.linalg.norm(apply(correction, anchors) - anchors, axis=1).max())
         loose = found_by_position is not None and (found_by_position[index] or found_by_position[0])
-        max_shift, max_turn = (
-            (config.max_ball_shift_found_by_position_m, config.max_rotation_found_by_position_deg)
-            if loose
-            else (config.max_ball_shift_m, config.max_rotation_deg)
-        )
+        max_shift, max_turn = refinement_bounds(config, found_by_position=loose)
         if ball_shift > max_shift or rotation > max_turn:
             accepted, reason = (
                 False,
@@ -265,6 +262,15 @@ def refine_views(
             )
         )
     return corrections, reports
+
+
+def refinement_bounds(config: IcpConfig, *, found_by_position: bool) -> tuple[float, float]:
+    """How far (m) a refinement may move a view's balls and turn it (degrees) and still be kept: the ball
+    registration's own accuracy, looser where a ball was found by position (a fragment, its centre known to
+    a few centimetres) in the view or the reference."""
+    if found_by_position:
+        return config.max_ball_shift_found_by_position_m, config.max_rotation_found_by_position_deg
+    return config.max_ball_shift_m, config.max_rotation_deg
 
 
 def check_icp_agreement(reports: list[IcpRefinement], config: IcpConfig) -> None:

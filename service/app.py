@@ -8,11 +8,13 @@ import asyncio
 import logging
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
+from pathlib import Path
 from typing import Any
 
 from fastapi import Depends, FastAPI
 from fastapi.concurrency import run_in_threadpool
 from fastapi.openapi.utils import get_openapi
+from fastapi.staticfiles import StaticFiles
 from fastapi_offline import FastAPIOffline
 
 from canopy_core import __version__
@@ -29,7 +31,10 @@ from service.problems import Problem, component_schemas, install_problem_handler
 from service.settings import Settings
 from service.validation import endpoints as validation
 
-__all__ = ["create_app"]
+__all__ = ["STATIC_DIR", "create_app"]
+
+STATIC_DIR = Path(__file__).parent / "static"
+"""The pages' scripts and their vendored libraries (three.js), served at ``/static`` without a key."""
 
 log = logging.getLogger("canopy.service")
 
@@ -72,6 +77,7 @@ def create_app(context: Context | None = None) -> FastAPI:
     app.add_middleware(ConditionalGet)
     for module in (health, captures, jobs, farm, keys, validation):
         app.include_router(module.router)
+    app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")
     app.openapi = lambda: _openapi(app)  # type: ignore[method-assign]
     return app
 

@@ -198,6 +198,9 @@ class Measurement(Base):
     result: Mapped[dict[str, Any]]
     cloud_sha256: Mapped[str] = mapped_column(String(64))
     cloud_points: Mapped[int]
+    figures: Mapped[dict[str, Any] | None] = mapped_column(JSON)
+    """The report's PNG figures in the blob store, name to SHA-256; None for measurements made before the
+    worker drew them."""
     created_at: Mapped[datetime] = mapped_column(default=utc_now)
 
 

@@ -1,11 +1,12 @@
 """The measurement of one job, run in a child process so that a crash or an out-of-memory kill of the
 measurement becomes an ordinary, retried failure of the job rather than the death of the worker.
 
-The child reads the capture's files from the blob store, measures, stores the fused cloud and sends its
-messages to the worker through a pipe: ``("progress", stage, fraction)`` while it runs, then one of
-``("ok", document, cloud_sha256, cloud_points)``, ``("error", error_dict)`` for a failure the measurement
-core explains (permanent), ``("no_space", text)`` when the data disk had no room for the cloud (the job is
-handed back, not failed), or ``("crash", text)`` for an unexpected exception (retried).
+The child reads the capture's files from the blob store, measures, stores the fused cloud and the report's
+figures and sends its messages to the worker through a pipe: ``("progress", stage, fraction)`` while it
+runs, then one of ``("ok", document, cloud_sha256, cloud_points, figures)`` (figures: name to SHA-256),
+``("error", error_dict)`` for a failure the measurement core explains (permanent), ``("no_space", text)``
+when the data disk had no room for the cloud or a figure (the job is handed back, not failed), or
+``("crash", text)`` for an unexpected exception (retried).
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from canopy_core.capture import read_capture, stored_manifest
 from canopy_core.cloud_io import ply_bytes
 from canopy_core.errors import CanopyError
 from canopy_core.measure import measure
+from service.reports.figures import measurement_figures
 from service.storage import BlobStore, OutOfSpace
 
 __all__ = ["MeasurementSpec", "exit_with_worker", "run_measurement"]
@@ -81,8 +83,9 @@ def run_measurement(connection: Connection, lifeline: Connection, spec: Measurem
         capture = read_capture(stored_manifest(spec.manifest), read, max_pixels=spec.max_pixels, stored=True)
         result = measure(capture, overrides=spec.overrides, progress=progress)
         cloud_sha256 = store.put(ply_bytes(result.cloud))
+        figures = {name: store.put(png) for name, png in measurement_figures(result, capture).items()}
         document = json.loads(result.to_json())
-        connection.send(("ok", document, cloud_sha256, len(result.cloud)))
+        connection.send(("ok", document, cloud_sha256, len(result.cloud), figures))
     except OutOfSpace as exc:
         connection.send(("no_space", str(exc)))
     except CanopyError as exc:

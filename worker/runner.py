@@ -233,9 +233,14 @@ class Worker:
     def _write_outcome(self, session: Session, lease: Lease, outcome: _Outcome) -> bool:
         max_attempts = self.context.settings.job_max_attempts
         if outcome.kind == "ok":
-            document, cloud_sha256, cloud_points = outcome.message
+            document, cloud_sha256, cloud_points, figures = outcome.message
             measurement_id = complete(
-                session, lease, result=document, cloud_sha256=cloud_sha256, cloud_points=cloud_points
+                session,
+                lease,
+                result=document,
+                cloud_sha256=cloud_sha256,
+                cloud_points=cloud_points,
+                figures=figures,
             )
             return measurement_id is not None
         if outcome.kind == "error":

@@ -6,9 +6,10 @@ import hashlib
 from collections.abc import Iterator
 from typing import Annotated, Any, Literal
 
-from fastapi import APIRouter, Query, Request, Response
-from fastapi.responses import FileResponse, StreamingResponse
+from fastapi import APIRouter, Path, Query, Request, Response
+from fastapi.responses import FileResponse, HTMLResponse, StreamingResponse
 
+from canopy_core import __version__
 from canopy_core.cloud_io import read_cloud
 from service.captures.service import get_capture
 from service.conventions import ItemId, SinceQuery, strong_etag, unchanged
@@ -29,8 +30,10 @@ from service.farm.service import (
     measurements_csv_etag,
 )
 from service.farm.summaries import orchard_summary, row_summary, summary_csv
+from service.models import Measurement as MeasurementRecord
 from service.pagination import CursorQuery, LimitQuery, Page
 from service.problems import ApiError, BadRequest, Conflict, InvalidContent, NotFound, problem_responses
+from service.reports.page import report_html
 
 __all__ = ["router"]
 
@@ -181,6 +184,94 @@ def cloud(measurement_id: ItemId, request: Request, context: ContextDep, _key: R
         filename=f"measurement-{measurement_id}.ply",
         headers={"ETag": etag},
     )
+
+
+_PNG: dict[int | str, dict[str, Any]] = {200: {"content": {"image/png": {}}, "description": "A PNG figure"}}
+
+
+@router.get(
+    "/measurements/{measurement_id}/figures/{name}.png",
+    response_class=Response,
+    responses=problem_responses(NotFound, Conflict, also=_PNG),
+)
+def figure(
+    measurement_id: ItemId,
+    name: Annotated[str, Path(max_length=100, pattern=r"^[a-z0-9-]+$")],
+    request: Request,
+    context: ContextDep,
+    _key: ReadKey,
+) -> Response:
+    """One of the figures the worker drew with the measurement (their names are in its ``figures``):
+    ``report``, ``elevation``, ``top``, ``density``, ``modes``, ``balls-views-1``, ..."""
+    with context.database.reading() as session:
+        record = get_measurement(session, measurement_id)
+    return _figure(request, context, record, name)
+
+
+@router.get(
+    "/measurements/{measurement_id}/report.png",
+    response_class=Response,
+    responses=problem_responses(NotFound, Conflict, also=_PNG),
+)
+def report_png(measurement_id: ItemId, request: Request, context: ContextDep, _key: ReadKey) -> Response:
+    """The measurement's figures in one: side elevation, top view, height density, per view and merged."""
+    with context.database.reading() as session:
+        record = get_measurement(session, measurement_id)
+    return _figure(request, context, record, "report")
+
+
+@router.get(
+    "/measurements/{measurement_id}/report",
+    response_class=HTMLResponse,
+    responses=problem_responses(
+        NotFound, also={200: {"content": {"text/html": {}}, "description": "A page"}}
+    ),
+)
+def report(measurement_id: ItemId, request: Request, context: ContextDep, _key: ReadKey) -> Response:
+    """The measurement's report page: its numbers, registration diagnostics, figures and a 3D viewer of the
+    fused cloud with where H, W and D were read."""
+    with context.database.reading() as session:
+        record = get_measurement(session, measurement_id)
+        document = measurement_document(session, record)
+    etag = strong_etag(
+        hashlib.sha256(
+            f"{__version__}|{record.cloud_sha256}|{sorted((record.figures or {}).items())}".encode()
+        ).hexdigest()
+    )
+    not_modified = unchanged(request, etag)
+    if not_modified is not None:
+        return not_modified
+    try:
+        cloud = read_cloud(context.store.read(record.cloud_sha256))
+        figures = {name: context.store.read(digest) for name, digest in (record.figures or {}).items()}
+    except FileNotFoundError as missing:
+        raise ApiError(f"a file of measurement {measurement_id} is missing from the blob store") from missing
+    return HTMLResponse(report_html(document, figures, cloud), headers={"ETag": etag})
+
+
+def _figure(request: Request, context: ContextDep, record: MeasurementRecord, name: str) -> Response:
+    if record.figures is None:
+        raise Conflict(
+            f"measurement {record.id} was made before the worker drew figures; measure its capture again",
+            code="measurement_without_figures",
+        )
+    digest = record.figures.get(name)
+    if digest is None:
+        raise NotFound(
+            f"measurement {record.id} has no figure {name!r}; it has {', '.join(sorted(record.figures))}",
+            code="unknown_figure",
+        )
+    etag = strong_etag(digest)
+    not_modified = unchanged(request, etag)
+    if not_modified is not None:
+        return not_modified
+    try:
+        png = context.store.read(digest)
+    except FileNotFoundError as missing:
+        raise ApiError(
+            f"figure {name!r} of measurement {record.id} is missing from the blob store"
+        ) from missing
+    return Response(png, media_type="image/png", headers={"ETag": etag})
 
 
 _LAS_TYPES = {"las": "application/vnd.las", "laz": "application/vnd.laszip"}

@@ -211,6 +211,10 @@ def measurement_document(session: Session, measurement: Measurement) -> dict[str
             "points": measurement.cloud_points,
             "sha256": measurement.cloud_sha256,
         },
+        "figures": {
+            name: f"/v1/measurements/{measurement.id}/figures/{name}.png"
+            for name in measurement.figures or {}
+        },
         **measurement.result,
         "capture": {**measurement.result["capture"], "captured_at": utc_text(captured_at)},
     }

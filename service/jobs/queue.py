@@ -119,9 +119,16 @@ def _finish(job: Job, *, state: str, error: dict[str, Any] | None, now: datetime
 
 
 def complete(
-    session: Session, lease: Lease, *, result: dict[str, Any], cloud_sha256: str, cloud_points: int
+    session: Session,
+    lease: Lease,
+    *,
+    result: dict[str, Any],
+    cloud_sha256: str,
+    cloud_points: int,
+    figures: dict[str, str] | None = None,
 ) -> int | None:
-    """Store the measurement and mark the job succeeded; the measurement's id, or None (lease lost)."""
+    """Store the measurement (with its figures' blobs, name to SHA-256) and mark the job succeeded; the
+    measurement's id, or None (lease lost)."""
     job = _held(session, lease)
     if job is None:
         return None
@@ -137,6 +144,7 @@ def complete(
         result=result,
         cloud_sha256=cloud_sha256,
         cloud_points=cloud_points,
+        figures=figures,
     )
     session.add(measurement)
     job.stage, job.progress = "done", 1.0

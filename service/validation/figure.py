@@ -5,10 +5,6 @@ from __future__ import annotations
 
 import io
 
-import matplotlib
-
-matplotlib.use("Agg")  # headless: the service draws figures without a display
-
 from matplotlib.figure import Figure
 
 from service.validation.manual import METRIC_COLUMNS

@@ -140,6 +140,30 @@ def test_canopy_metrics_reports_paper_and_extra_metrics_consistently() -> None:
     assert metrics.points == tree.shape[0]
 
 
+def test_the_marks_say_where_h_w_and_d_were_read() -> None:
+    """The top's z is H, the crown base point's z the crown base, W's ends are W apart and lie, before their
+    half-pitch move, on the farthest pair of the points' horizontal hull (found here by brute force)."""
+    tree = _tree(np.random.default_rng(7))
+    footprint = np.full(tree.shape[0], 0.008)
+    metrics = canopy_metrics(
+        tree, trunk_xy_m=np.zeros(2), pixel_footprint_m=footprint, config=MetricsConfig()
+    )
+    marks = metrics.marks
+    assert marks.top_m[2] == metrics.height_m
+    assert marks.crown_base_point_m[2] == metrics.crown_base_m
+    ends = np.array(marks.width_ends_m)
+    assert np.linalg.norm(ends[1] - ends[0]) == pytest.approx(metrics.width_m, abs=1e-9)
+    xy = tree[:, :2]
+    far = np.argsort(np.linalg.norm(xy, axis=1))[-400:]  # the farthest pair is among the outermost points
+    gaps = np.linalg.norm(xy[far][:, None] - xy[far][None, :], axis=2)
+    first, second = np.unravel_index(np.argmax(gaps), gaps.shape)
+    pair = xy[far][[first, second]]
+    inward = ends - 0.004 * np.array([-1.0, 1.0])[:, None] * (ends[1] - ends[0]) / np.linalg.norm(
+        ends[1] - ends[0]
+    )
+    assert sorted(map(tuple, np.round(inward, 9))) == sorted(map(tuple, np.round(pair, 9)))
+
+
 # What stands on the ground beside the tree: weeds, grass and suckers at the trunk's foot (green, joined to
 # the trunk), fallen apples, flying pixels. A tree whose crown starts at 1.06 m above a bare trunk.
 

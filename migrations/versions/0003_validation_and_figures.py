@@ -1,4 +1,4 @@
-"""measurements taken by hand, to validate the service's against
+"""measurements taken by hand, to validate the service's against; each measurement's report figures
 
 Revision ID: 0003
 Revises: 0002
@@ -38,7 +38,10 @@ def upgrade() -> None:
         ),
         sqlite_autoincrement=True,
     )
+    op.add_column("measurements", sa.Column("figures", sa.JSON(), nullable=True))
 
 
 def downgrade() -> None:
+    with op.batch_alter_table("measurements", table_kwargs={"sqlite_autoincrement": True}) as batch:
+        batch.drop_column("figures")
     op.drop_table("manual_measurements")

@@ -1,0 +1,331 @@
+"""Bringing a capture's views into one world frame: the balls chosen jointly, the ball registration, the
+ground frame, each view's region of interest and the gated ICP, chosen again when the views' surfaces
+contradict the balls."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from canopy_core.backproject import ViewCloud
+from canopy_core.ball_selection import (
+    BallChoice,
+    ball_off_ground,
+    balls_off_ground,
+    balls_off_trunk,
+    far_ball,
+    select_balls,
+)
+from canopy_core.balls import BallCandidate, ViewBallCandidates
+from canopy_core.config import IcpConfig, MeasureConfig
+from canopy_core.errors import MeasurementError, RegistrationFailed
+from canopy_core.filters import sparse_point_mask
+from canopy_core.ground import CAMERA_UP, GroundFrame, GroundPlane, fit_ground_frame, horizontal_distance
+from canopy_core.refine import IcpRefinement, check_icp_agreement, refine_views, refinement_bounds
+from canopy_core.register import apply, register_by_balls
+
+__all__ = ["Alignment", "align_views", "balls_and_frame"]
+
+_GROUND_SAMPLE = 60_000
+"""Points of all views together on which the world frame's ground is fitted."""
+
+
+@dataclass(frozen=True)
+class Alignment:
+    """The views in one world frame: per view (in capture order) the balls chosen, the pose, the points
+    of the region of interest in the world frame with their colours, how many stray points were dropped
+    from it, and what ICP did (None for the reference, or when ICP is off)."""
+
+    choices: list[BallChoice]
+    view_to_reference: list[np.ndarray]
+    ground: GroundFrame
+    world_from_view: list[np.ndarray]
+    roi_points_m: list[np.ndarray]
+    roi_colors_rgb: list[np.ndarray]
+    stray_points_removed: list[int]
+    icp: list[IcpRefinement | None]
+
+
+def align_views(
+    view_names: Sequence[str],
+    clouds: list[ViewCloud],
+    focal_px: Sequence[float],
+    candidates: list[ViewBallCandidates],
+    grounds: list[GroundPlane | None],
+    config: MeasureConfig,
+    *,
+    refining: Callable[[], None] | None = None,
+) -> Alignment:
+    """Register the views by their balls, fit the world frame, cut each view's region of interest and
+    refine the poses by ICP.
+
+    When the views' surfaces line up only with a view's balls moved or turned beyond what their fits allow
+    (:func:`check_icp_agreement`), some sphere taken for a ball is a look-alike: an apple or a fragment of
+    clutter that happens to close a triangle of the right sides. Each ball of that view, and then of the
+    reference view, is ruled out in turn (:meth:`ViewBallCandidates.ruling_out`) and the balls chosen
+    again; of the choices the surfaces agree with as closely as with a sound registration (ICP keeps its
+    refinement of every view), the one they contradict least is taken.
+
+    Parameters
+    ----------
+    view_names, clouds, focal_px
+        Per view, in capture order (the first is the reference): its name, its filtered points and its
+        depth camera's focal length in pixels (the stray-point filter's pixel footprint).
+    candidates, grounds
+        Per view, the spheres found and its ground plane (:func:`canopy_core.measure.ball_evidence`).
+    refining
+        Called once as ICP starts on the first choice (the ``refine`` progress stage).
+
+    Raises
+    ------
+    BallNotFound, RegistrationFailed
+        As :func:`balls_and_frame`; RegistrationFailed as :func:`check_icp_agreement` when no other
+        choice satisfies the surfaces.
+    """
+    first = _aligned(view_names, clouds, focal_px, candidates, grounds, config, refining=refining)
+    try:
+        check_icp_agreement(_reports(first), config.icp)
+        return first
+    except RegistrationFailed as disagreement:
+        failure = disagreement
+    names = list(view_names)
+    suspect = names.index(failure.view) if failure.view in names else 0
+    agreeing = []
+    for index in dict.fromkeys((suspect, 0)):
+        for color in config.balls.colors:
+            retry = list(candidates)
+            retry[index] = candidates[index].ruling_out(
+                first.choices[index].chosen[color].fit.center_m, config.balls.radius_m
+            )
+            try:
+                again = _aligned(view_names, clouds, focal_px, retry, grounds, config)
+            except MeasurementError:
+                continue
+            if _within_refinement_bounds(again, config.icp):
+                agreeing.append(again)
+    if not agreeing:
+        raise failure
+    return min(agreeing, key=lambda alignment: _disagreement(alignment, config.icp))
+
+
+def _within_refinement_bounds(alignment: Alignment, config: IcpConfig) -> bool:
+    """Whether the surfaces agree with these balls as closely as with a sound registration's: ICP moves no
+    view's balls or turns no view beyond what it would keep (:func:`refinement_bounds`). A choice made again
+    is one hypothesis among several, so it must meet that, not merely stay short of a certain failure
+    (:func:`check_icp_agreement`'s looser bounds): look-alikes both views see agree with each other and
+    close triangles that ICP turns by 4-5 degrees."""
+    loose_reference = bool(alignment.choices[0].found_by_position)
+    for choice, report in zip(alignment.choices, alignment.icp, strict=True):
+        if report is None:
+            continue
+        shift_m, turn_deg = refinement_bounds(
+            config, found_by_position=loose_reference or bool(choice.found_by_position)
+        )
+        if report.ball_shift_m > shift_m or report.rotation_change_deg > turn_deg:
+            return False
+    return True
+
+
+def _reports(alignment: Alignment) -> list[IcpRefinement]:
+    return [report for report in alignment.icp if report is not None]
+
+
+def _disagreement(alignment: Alignment, config: IcpConfig) -> float:
+    """How far the surfaces would move the balls or turn a view, as a share of what is allowed (the
+    largest over the views): of two choices that both pass, the one the surfaces contradict less."""
+    return max(
+        (
+            max(
+                report.ball_shift_m / config.max_disagreement_m,
+                report.rotation_change_deg / config.max_disagreement_deg,
+            )
+            for report in _reports(alignment)
+        ),
+        default=0.0,
+    )
+
+
+def _aligned(
+    view_names: Sequence[str],
+    clouds: list[ViewCloud],
+    focal_px: Sequence[float],
+    candidates: list[ViewBallCandidates],
+    grounds: list[GroundPlane | None],
+    config: MeasureConfig,
+    *,
+    refining: Callable[[], None] | None = None,
+) -> Alignment:
+    """One choice of balls carried through registration, the world frame, the regions of interest and ICP
+    (its reports not yet judged)."""
+    choices, view_to_reference, ground = balls_and_frame(clouds, candidates, grounds, config)
+    colors = config.balls.colors
+    centres = [np.array([choice.chosen[color].fit.center_m for color in colors]) for choice in choices]
+    world_from_view = [ground.world_from_reference @ pose for pose in view_to_reference]
+    roi = [
+        _roi_cloud(cloud, pose, focal, config)
+        for cloud, pose, focal in zip(clouds, world_from_view, focal_px, strict=True)
+    ]
+    roi_points = [points for points, _, _ in roi]
+    if refining is not None:
+        refining()
+    icp: list[IcpRefinement | None] = [None] * len(clouds)
+    if config.icp.enabled and len(clouds) > 1:
+        corrections, reports = refine_views(
+            list(view_names),
+            [points[points[:, 2] < config.icp.max_height_m] for points in roi_points],
+            view_anchors_m=[apply(pose, c) for pose, c in zip(world_from_view, centres, strict=True)],
+            found_by_position=[bool(choice.found_by_position) for choice in choices],
+            config=config.icp,
+        )
+        roi_points = [apply(c, p) for c, p in zip(corrections, roi_points, strict=True)]
+        world_from_view = [c @ pose for c, pose in zip(corrections, world_from_view, strict=True)]
+        by_view = {report.view: report for report in reports}
+        icp = [by_view.get(name) for name in view_names]
+    return Alignment(
+        choices=choices,
+        view_to_reference=view_to_reference,
+        ground=ground,
+        world_from_view=world_from_view,
+        roi_points_m=roi_points,
+        roi_colors_rgb=[colors_rgb for _, colors_rgb, _ in roi],
+        stray_points_removed=[dropped for _, _, dropped in roi],
+        icp=icp,
+    )
+
+
+def balls_and_frame(
+    clouds: list[ViewCloud],
+    candidates: list[ViewBallCandidates],
+    grounds: list[GroundPlane | None],
+    config: MeasureConfig,
+) -> tuple[list[BallChoice], list[np.ndarray], GroundFrame]:
+    """The balls chosen in each view, each view's pose in the reference view's frame, and the world frame.
+
+    The crew lays the balls on the ground, 0.3-0.8 m from the trunk. When a ball comes out farther from it
+    than ``balls.max_trunk_distance_m``, or off the ground round the balls (their plane tilted from the
+    ground's by more than a slope allows), the sphere taken for it is a look-alike every view saw (an apple
+    lying on the ground agrees with itself across views; a fallen apple's centre lies lower than a ball's):
+    the balls are chosen again without it, and without any other sphere that lies as far from the trunk
+    (the same apple fitted twice, its neighbours in a heap), so the ball is sought where the others place
+    it.
+
+    Raises
+    ------
+    BallNotFound, RegistrationFailed
+        As :func:`select_balls`; RegistrationFailed naming the ball when no other choice lies round the
+        trunk and on the ground.
+    """
+    choices = select_balls(candidates, config.balls, grounds=grounds)
+    view_to_reference, ground, balls_world = _registered(choices, clouds, config)
+    misplaced = _misplaced_ball(balls_world, ground, config)
+    if misplaced is None:
+        return choices, view_to_reference, ground
+    color, failure = misplaced
+    trunk_xy = np.array(ground.trunk_xy_m)
+    without = []
+    for view, choice, pose in zip(candidates, choices, view_to_reference, strict=True):
+        world_from_view = ground.world_from_reference @ pose
+        without.append(
+            replace(
+                view,
+                candidates=tuple(
+                    candidate
+                    for candidate in view.candidates
+                    if candidate is not choice.chosen[color]
+                    and _round_trunk(candidate, world_from_view, trunk_xy, config.balls.max_trunk_distance_m)
+                ),
+            )
+        )
+    try:
+        again = select_balls(without, config.balls, grounds=grounds)
+    except MeasurementError:
+        again = None
+    if again is not None:
+        poses, frame, centres_world = _registered(again, clouds, config)
+        if _misplaced_ball(centres_world, frame, config) is None:
+            return again, poses, frame
+    raise failure
+
+
+def _round_trunk(
+    candidate: BallCandidate, world_from_view: np.ndarray, trunk_xy_m: np.ndarray, max_distance_m: float
+) -> bool:
+    """Whether a sphere lies within ``max_distance_m`` of the trunk, horizontally, where a ball may lie."""
+    centre = apply(world_from_view, candidate.fit.center_m[None, :])[0]
+    return bool(np.linalg.norm(centre[:2] - trunk_xy_m) <= max_distance_m)
+
+
+def _misplaced_ball(
+    balls_world: np.ndarray, ground: GroundFrame, config: MeasureConfig
+) -> tuple[str, RegistrationFailed] | None:
+    """The colour of a ball that cannot be one, far from the trunk or off the ground, with the failure to
+    raise if no other choice does better; None when the balls lie where balls lie."""
+    trunk_xy = np.array(ground.trunk_xy_m)
+    colors = config.balls.colors
+    far = far_ball(balls_world, trunk_xy, colors, config.balls.max_trunk_distance_m)
+    if far is not None:
+        return far, balls_off_trunk(balls_world, trunk_xy, colors, far)
+    sunk = ball_off_ground(ground, colors, config.balls.radius_m)
+    if sunk is not None:
+        return sunk, balls_off_ground(ground, colors, config.balls.radius_m, sunk)
+    return None
+
+
+def _registered(
+    choices: list[BallChoice], clouds: list[ViewCloud], config: MeasureConfig
+) -> tuple[list[np.ndarray], GroundFrame, np.ndarray]:
+    """Each view's pose in the reference frame from the balls chosen, the world frame, and the reference
+    view's balls in the world frame."""
+    centres = [
+        np.array([choice.chosen[color].fit.center_m for color in config.balls.colors]) for choice in choices
+    ]
+    view_to_reference = [register_by_balls(view_centres, centres[0]) for view_centres in centres]
+    ground = _ground_frame(clouds, view_to_reference, centres[0], config)
+    return view_to_reference, ground, apply(ground.world_from_reference, centres[0])
+
+
+def _ground_frame(
+    clouds: list[ViewCloud],
+    view_to_reference: list[np.ndarray],
+    ball_centres: np.ndarray,
+    config: MeasureConfig,
+) -> GroundFrame:
+    """The world frame, fitted on a thinned sample of all views' points in the reference frame."""
+    rng = np.random.default_rng(0)
+    share = max(1, _GROUND_SAMPLE // len(clouds))
+    sample = []
+    for cloud, pose in zip(clouds, view_to_reference, strict=True):
+        pick = rng.choice(len(cloud), size=min(share, len(cloud)), replace=False)
+        sample.append(apply(pose, cloud.points_m[pick]))
+    return fit_ground_frame(
+        np.concatenate(sample),
+        ball_centres,
+        ball_radius_m=config.balls.radius_m,
+        up_hint=CAMERA_UP,
+        forward_hint=np.array([0.0, 0.0, 1.0]),
+        search_radius_m=config.roi.radius_m,
+        config=config.ground,
+    )
+
+
+def _roi_cloud(
+    cloud: ViewCloud, world_from_view: np.ndarray, focal_px: float, config: MeasureConfig
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """A view's points inside the region of interest, in the world frame, without stray points."""
+    world = apply(world_from_view, cloud.points_m)
+    up = np.array([0.0, 0.0, 1.0])
+    inside = (horizontal_distance(world, np.zeros(3), up) < config.roi.radius_m) & (
+        world[:, 2] < config.roi.max_height_m
+    )
+    inside &= world[:, 2] > -config.ground.search_band_m
+    dense = sparse_point_mask(
+        world[inside],
+        range_m=cloud.points_m[inside, 2],
+        focal_px=focal_px,
+        radius_px=config.filters.sparse_radius_px,
+        min_neighbors=config.filters.sparse_min_neighbors,
+    )
+    kept = np.flatnonzero(inside)[dense]
+    return world[kept], cloud.colors_rgb[kept], int(np.count_nonzero(inside) - kept.size)

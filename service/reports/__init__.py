@@ -1,0 +1,1 @@
+"""What a measurement is shown as: its figures, made by the worker with the measurement, and its report."""

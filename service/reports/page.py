@@ -1,0 +1,67 @@
+"""A measurement's report page: one HTML document with its numbers, registration diagnostics, figures (as
+data URIs) and the fused cloud for the 3D viewer, so a grower can check where H, W and D were taken.
+
+The page needs nothing from the internet: the viewer's script and three.js come from the service's own
+``/static`` (``service/static``); everything else is inside the document.
+"""
+
+from __future__ import annotations
+
+import base64
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from jinja2 import Environment, FileSystemLoader, select_autoescape
+
+from canopy_core.cloud_io import Cloud
+
+__all__ = ["MAX_VIEWER_POINTS", "report_html"]
+
+MAX_VIEWER_POINTS = 80_000
+"""The 3D viewer gets at most this many points (a fixed random sample): enough to see the tree, light
+enough for a phone."""
+FIGURE_ORDER = ("elevation", "top", "density", "modes")
+_TEMPLATES = Environment(
+    loader=FileSystemLoader(Path(__file__).parent / "templates"),
+    autoescape=select_autoescape(["html"]),
+    trim_blocks=True,
+    lstrip_blocks=True,
+)
+
+
+def report_html(document: dict[str, Any], figures: dict[str, bytes], cloud: Cloud) -> str:
+    """The report page of the measurement ``document`` (as ``GET /v1/measurements/{id}`` answers it), with
+    its PNG ``figures`` by name and its fused ``cloud``."""
+    views = [name for name in document["modes"] if name != "merged"]
+    ordered = [name for name in FIGURE_ORDER if name in figures]
+    ordered += sorted(name for name in figures if name not in FIGURE_ORDER and name != "report")
+    return _TEMPLATES.get_template("report.html").render(
+        m=document,
+        views=views,
+        figures=[(name, _data_uri(figures[name])) for name in ordered],
+        viewer=_viewer_data(cloud, document["marks"]),
+    )
+
+
+def _data_uri(png: bytes) -> str:
+    return "data:image/png;base64," + base64.b64encode(png).decode("ascii")
+
+
+def _viewer_data(cloud: Cloud, marks: dict[str, Any]) -> dict[str, Any]:
+    """The cloud for the viewer: float32 positions and uint8 colours, little-endian, base64."""
+    points, colors = cloud.points_m, cloud.colors_rgb
+    if len(cloud) > MAX_VIEWER_POINTS:
+        keep = np.sort(np.random.default_rng(0).choice(len(cloud), MAX_VIEWER_POINTS, replace=False))
+        points = points[keep]
+        colors = None if colors is None else colors[keep]
+    if colors is None:
+        colors = np.full(points.shape, 90, dtype=np.uint8)
+    return {
+        "points": int(points.shape[0]),
+        "positions_b64": base64.b64encode(points.astype("<f4").tobytes()).decode("ascii"),
+        "colors_b64": base64.b64encode(np.ascontiguousarray(colors, dtype=np.uint8).tobytes()).decode(
+            "ascii"
+        ),
+        "marks": marks,
+    }
