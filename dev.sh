@@ -7,13 +7,14 @@ cd "$(dirname "$0")"
 
 VENV=${CANOPY_VENV:-.venv}
 APT_PACKAGES=(libusb-1.0-0 libgl1 libgomp1 curl openssl)
+TEST_APT_PACKAGES=(chromium)  # the page tests' browser, driven by Playwright
 PYTHON=${PYTHON:-python3}
 
 as_root() { if [ "$(id -u)" -eq 0 ]; then "$@"; else sudo "$@"; fi; }
 
 system_libraries() {
     local missing=()
-    for package in "${APT_PACKAGES[@]}"; do
+    for package in "${APT_PACKAGES[@]}" "$@"; do
         dpkg -s "$package" >/dev/null 2>&1 || missing+=("$package")
     done
     command -v "$PYTHON" >/dev/null 2>&1 || missing+=(python3)
@@ -98,7 +99,8 @@ PY
         wait $up_pid
         ;;
     test)
-        setup
+        system_libraries "${TEST_APT_PACKAGES[@]}"
+        python_environment
         shift
         "$VENV/bin/python" -m pytest -q "$@"
         ;;

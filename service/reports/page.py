@@ -49,19 +49,21 @@ def _data_uri(png: bytes) -> str:
 
 
 def _viewer_data(cloud: Cloud, marks: dict[str, Any]) -> dict[str, Any]:
-    """The cloud for the viewer: float32 positions and uint8 colours, little-endian, base64."""
-    points, colors = cloud.points_m, cloud.colors_rgb
+    """The cloud for the viewer: float32 positions, uint8 colours and ASPRS classes, little-endian,
+    base64."""
     if len(cloud) > MAX_VIEWER_POINTS:
-        keep = np.sort(np.random.default_rng(0).choice(len(cloud), MAX_VIEWER_POINTS, replace=False))
-        points = points[keep]
-        colors = None if colors is None else colors[keep]
-    if colors is None:
-        colors = np.full(points.shape, 90, dtype=np.uint8)
+        keep = np.zeros(len(cloud), dtype=bool)
+        keep[np.random.default_rng(0).choice(len(cloud), MAX_VIEWER_POINTS, replace=False)] = True
+        cloud = cloud.only(keep)
+    colors = cloud.colors_rgb if cloud.colors_rgb is not None else np.full(cloud.points_m.shape, 90)
     return {
-        "points": int(points.shape[0]),
-        "positions_b64": base64.b64encode(points.astype("<f4").tobytes()).decode("ascii"),
-        "colors_b64": base64.b64encode(np.ascontiguousarray(colors, dtype=np.uint8).tobytes()).decode(
-            "ascii"
-        ),
+        "points": len(cloud),
+        "positions_b64": _base64(cloud.points_m.astype("<f4")),
+        "colors_b64": _base64(colors.astype(np.uint8)),
+        "classes_b64": None if cloud.classes is None else _base64(cloud.classes.astype(np.uint8)),
         "marks": marks,
     }
+
+
+def _base64(values: np.ndarray) -> str:
+    return base64.b64encode(np.ascontiguousarray(values).tobytes()).decode("ascii")

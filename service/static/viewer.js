@@ -4,6 +4,7 @@ import * as THREE from "three";
 import { OrbitControls } from "three/addons/OrbitControls.js";
 
 const H_COLOUR = 0xd62728, W_COLOUR = 0x9467bd, BASE_COLOUR = 0x1f77b4;
+const TREE_CLASS = 5; // ASPRS high vegetation: the points H, W and D were read from
 
 function decode(base64, Type) {
   const bytes = Uint8Array.from(atob(base64), (c) => c.charCodeAt(0));
@@ -23,13 +24,26 @@ function heightColours(positions) {
   return colours;
 }
 
+// A mark drawn over the points (no depth test), so the leaves never hide it.
 function line(points, colour) {
   const geometry = new THREE.BufferGeometry().setFromPoints(points.map((p) => new THREE.Vector3(...p)));
-  return new THREE.Line(geometry, new THREE.LineBasicMaterial({ color: colour }));
+  const mark = new THREE.Line(geometry, new THREE.LineBasicMaterial({ color: colour, depthTest: false }));
+  mark.renderOrder = 1;
+  return mark;
+}
+
+// The box round the tree's own points (class 5), or round every point when the cloud has no classes.
+function treeBox(positions, classes) {
+  const box = new THREE.Box3(), point = new THREE.Vector3();
+  for (let i = 0; i < positions.length / 3; i++) {
+    if (classes && classes[i] !== TREE_CLASS) continue;
+    box.expandByPoint(point.fromArray(positions, 3 * i));
+  }
+  return box;
 }
 
 // The marks: the top's vertical (H) from the ground, W's segment at the crown's middle height, the crown
-// base as a square round the crown, and D beside the crown from the crown base to the top.
+// base as a square round the tree, and D at its corner from the crown base to the top.
 function marks(data, box) {
   const group = new THREE.Group(), m = data.marks;
   const [tx, ty, h] = m.top_m, base = m.crown_base_point_m[2];
@@ -49,8 +63,8 @@ export function showCloud(canvas, data) {
   const geometry = new THREE.BufferGeometry();
   geometry.setAttribute("position", new THREE.BufferAttribute(positions, 3));
   geometry.setAttribute("color", new THREE.BufferAttribute(rgb, 3));
-  geometry.computeBoundingBox();
-  const box = geometry.boundingBox, centre = box.getCenter(new THREE.Vector3());
+  const classes = data.classes_b64 ? decode(data.classes_b64, Uint8Array) : null;
+  const box = treeBox(positions, classes), centre = box.getCenter(new THREE.Vector3());
   const size = box.getSize(new THREE.Vector3()).length();
 
   const renderer = new THREE.WebGLRenderer({ canvas, antialias: true, preserveDrawingBuffer: true });
@@ -66,7 +80,9 @@ export function showCloud(canvas, data) {
   camera.position.set(centre.x - 0.9 * size, centre.y - 0.9 * size, centre.z + 0.35 * size);
   const controls = new OrbitControls(camera, canvas);
   controls.target.copy(centre);
+  controls.update();
 
+  // Drawn on demand: when the controls move the camera (their "change" event) and when the page resizes.
   function render() {
     const { clientWidth: width, clientHeight: height } = canvas;
     if (canvas.width !== Math.round(width * renderer.getPixelRatio())) {
@@ -74,7 +90,6 @@ export function showCloud(canvas, data) {
       camera.aspect = width / Math.max(height, 1);
       camera.updateProjectionMatrix();
     }
-    controls.update();
     renderer.render(scene, camera);
   }
   controls.addEventListener("change", render);
