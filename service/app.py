@@ -8,7 +8,6 @@ import asyncio
 import logging
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
-from pathlib import Path
 from typing import Any
 
 from fastapi import Depends, FastAPI
@@ -19,22 +18,21 @@ from fastapi_offline import FastAPIOffline
 
 from canopy_core import __version__
 from canopy_core.capture import CaptureManifest
-from service import health
+from service import dashboard, health
 from service.admission import Admission
+from service.app_files import STATIC_DIR
 from service.captures import endpoints as captures
 from service.context import Context
 from service.conventions import ConditionalGet, reject_unknown_query
 from service.farm import endpoints as farm
 from service.jobs import endpoints as jobs
 from service.keys import endpoints as keys
+from service.keys import session_endpoints as sessions
 from service.problems import Problem, component_schemas, install_problem_handlers
 from service.settings import Settings
 from service.validation import endpoints as validation
 
-__all__ = ["STATIC_DIR", "create_app"]
-
-STATIC_DIR = Path(__file__).parent / "static"
-"""The pages' scripts and their vendored libraries (three.js), served at ``/static`` without a key."""
+__all__ = ["create_app"]
 
 log = logging.getLogger("canopy.service")
 
@@ -75,7 +73,7 @@ def create_app(context: Context | None = None) -> FastAPI:
     app.state.admission = Admission(context.settings)
     install_problem_handlers(app)
     app.add_middleware(ConditionalGet)
-    for module in (health, captures, jobs, farm, keys, validation):
+    for module in (health, captures, jobs, farm, keys, sessions, validation, dashboard):
         app.include_router(module.router)
     app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")
     app.openapi = lambda: _openapi(app)  # type: ignore[method-assign]

@@ -11,6 +11,7 @@ from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from service.admission import Admission
 from service.context import Context
 from service.keys.service import authenticate, grants
+from service.keys.sessions import SESSION_COOKIE, session_key
 from service.models import ApiKey
 from service.problems import Forbidden, Unauthorized
 
@@ -45,14 +46,29 @@ BearerDep = Annotated[HTTPAuthorizationCredentials | None, Depends(_BEARER)]
 security scheme, so that Swagger UI offers to send the key."""
 
 
-def _require(*scopes: str) -> Callable[[Context, HTTPAuthorizationCredentials | None], ApiKey]:
-    """A dependency that lets through keys holding any of ``scopes`` (or ``admin``)."""
+_SESSION_METHODS = frozenset({"GET", "HEAD"})
+"""What a browser session's cookie may do: read. Anything that changes data needs the key as a bearer, so a
+cookie a browser sends by itself can never write (no cross-site request forgery to fear)."""
 
-    def check(context: ContextDep, credentials: BearerDep) -> ApiKey:
-        if credentials is None or credentials.scheme.lower() != "bearer" or not credentials.credentials:
-            raise Unauthorized("send the API key as 'Authorization: Bearer <key>'")
-        with context.database.reading() as session:
-            record = authenticate(session, credentials.credentials.strip())
+
+def _require(*scopes: str) -> Callable[[Request, Context, HTTPAuthorizationCredentials | None], ApiKey]:
+    """A dependency that lets through keys holding any of ``scopes`` (or ``admin``): sent as a bearer, or,
+    to read, by a browser session's cookie (:mod:`service.keys.sessions`)."""
+
+    def check(request: Request, context: ContextDep, credentials: BearerDep) -> ApiKey:
+        cookie = request.cookies.get(SESSION_COOKIE)
+        if credentials is None and cookie and request.method in _SESSION_METHODS:
+            with context.database.reading() as session:
+                record = session_key(session, cookie)
+        elif credentials is None or credentials.scheme.lower() != "bearer" or not credentials.credentials:
+            raise Unauthorized(
+                "send the API key as 'Authorization: Bearer <key>' (a browser session signs in reads only)"
+                if cookie
+                else "send the API key as 'Authorization: Bearer <key>'"
+            )
+        else:
+            with context.database.reading() as session:
+                record = authenticate(session, credentials.credentials.strip())
         if not any(grants(record, scope) for scope in scopes):
             needed = " or ".join(f"'{scope}'" for scope in scopes)
             raise Forbidden(

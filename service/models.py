@@ -21,6 +21,7 @@ __all__ = [
     "JOB_STATES",
     "ApiKey",
     "Base",
+    "BrowserSession",
     "Capture",
     "CaptureFile",
     "Job",
@@ -239,3 +240,18 @@ class ManualMeasurement(Base):
     width_m: Mapped[float | None]
     thickness_m: Mapped[float | None]
     updated_at: Mapped[datetime] = mapped_column(default=utc_now)
+
+
+class BrowserSession(Base):
+    """A browser signed in with an API key: the dashboard's and report pages' cookie, stored only as the
+    SHA-256 of its token. It grants what its key grants, for reading, until it expires or the key stops
+    working (revoked, expired, deleted)."""
+
+    __tablename__ = "browser_sessions"
+    __table_args__ = (_GROWING_IDS,)
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    token_sha256: Mapped[str] = mapped_column(String(64), unique=True)
+    key_id: Mapped[int] = mapped_column(ForeignKey("api_keys.id", ondelete="CASCADE"), index=True)
+    created_at: Mapped[datetime] = mapped_column(default=utc_now)
+    expires_at: Mapped[datetime]

@@ -33,6 +33,11 @@ class Settings(BaseSettings):
         16 * 1024 * 1024, gt=0, description="Largest accepted CSV of manual measurements, bytes."
     )
     max_image_pixels: int = Field(DEFAULT_MAX_PIXELS, gt=0, description="Largest accepted image.")
+    session_ttl_s: float = Field(
+        12 * 3600.0,
+        gt=0,
+        description="A browser signed in to the dashboard stays signed in this long, seconds (a field day).",
+    )
     validation_window_days: float = Field(
         14.0,
         gt=0,

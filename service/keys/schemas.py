@@ -7,7 +7,7 @@ from typing import Literal
 
 from pydantic import BaseModel, Field
 
-__all__ = ["KeyCreate", "KeyCreated", "KeyCurrent", "KeyOut"]
+__all__ = ["KeyCreate", "KeyCreated", "KeyCurrent", "KeyOut", "SessionOut"]
 
 Scope = Literal["capture", "read", "admin"]
 
@@ -47,3 +47,10 @@ class KeyCurrent(BaseModel):
     service: Literal["canopy"] = "canopy"
     version: str
     key: KeyOut
+
+
+class SessionOut(BaseModel):
+    """A browser signed in: the key it reads with (never the key itself) and when the session ends."""
+
+    key: KeyOut
+    expires_at: datetime

@@ -29,6 +29,7 @@ __all__ = [
     "list_keys",
     "parse_lifetime",
     "revoke_key",
+    "usable",
 ]
 
 SCOPES = ("capture", "read", "admin")
@@ -105,6 +106,11 @@ def authenticate(session: Session, key: str) -> ApiKey:
     record = session.scalar(select(ApiKey).where(ApiKey.key_sha256 == _digest(key)))
     if record is None:
         raise Unauthorized("the API key is unknown")
+    return usable(record)
+
+
+def usable(record: ApiKey) -> ApiKey:
+    """``record`` itself while it works; a 401 problem saying why when it is revoked or expired."""
     if record.revoked_at is not None:
         raise Unauthorized(f"API key {record.prefix} was revoked at {utc_text(record.revoked_at)}")
     if record.expires_at is not None and record.expires_at <= utc_now():

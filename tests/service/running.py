@@ -189,3 +189,34 @@ def create_tree(client: httpx.Client, orchard: str, row: str, tree: str) -> int:
     created = client.post("/v1/captures", content=json.dumps(manifest))
     assert created.status_code == 201, created.text
     return int(created.json()["tree_id"])
+
+
+def start_up(data_dir: Path, port: int) -> tuple[subprocess.Popen[str], list[str]]:
+    """Start `canopy up` and read its output until the API answers; the process and the lines read."""
+    process = subprocess.Popen(
+        [CANOPY, "up", "--port", str(port), "--data", str(data_dir)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env={**os.environ, "CANOPY_WORKER_POLL_S": "0.1"},
+    )
+    assert process.stdout is not None
+    lines = []
+    while "API on http://" not in "".join(lines):
+        line = process.stdout.readline()
+        assert line, f"canopy up ended: {''.join(lines)}"
+        lines.append(line)
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        try:
+            httpx.get(f"http://127.0.0.1:{port}/healthz", timeout=1.0)
+            break
+        except httpx.TransportError:
+            time.sleep(0.1)
+    return process, lines
+
+
+def stop_up(process: subprocess.Popen[str]) -> None:
+    """Stop `canopy up` as Ctrl-C does, and wait for it."""
+    process.send_signal(signal.SIGINT)
+    process.wait(timeout=30)

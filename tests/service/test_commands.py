@@ -21,49 +21,19 @@ import migrations
 from service.database import Database
 from service.migrate import is_current, upgrade
 from service.models import Base
-from tests.service.running import CANOPY, Service, free_port
-
-
-def _start_up(data_dir: Path, port: int) -> tuple[subprocess.Popen[str], list[str]]:
-    """Start `canopy up` and read its output until the API answers; the process and the lines read."""
-    process = subprocess.Popen(
-        [CANOPY, "up", "--port", str(port), "--data", str(data_dir)],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-        env={**os.environ, "CANOPY_WORKER_POLL_S": "0.1"},
-    )
-    assert process.stdout is not None
-    lines = []
-    while "API on http://" not in "".join(lines):
-        line = process.stdout.readline()
-        assert line, f"canopy up ended: {''.join(lines)}"
-        lines.append(line)
-    deadline = time.monotonic() + 60
-    while time.monotonic() < deadline:
-        try:
-            httpx.get(f"http://127.0.0.1:{port}/healthz", timeout=1.0)
-            break
-        except httpx.TransportError:
-            time.sleep(0.1)
-    return process, lines
-
-
-def _stop(process: subprocess.Popen[str]) -> None:
-    process.send_signal(signal.SIGINT)
-    process.wait(timeout=30)
+from tests.service.running import CANOPY, Service, free_port, start_up, stop_up
 
 
 def test_up_creates_the_database_and_prints_an_admin_key_once(tmp_path: Path) -> None:
     port = free_port()
-    first, first_lines = _start_up(tmp_path / "data", port)
+    first, first_lines = start_up(tmp_path / "data", port)
     try:
         key = next(line.strip() for line in first_lines if line.strip().startswith("canopy_"))
         answer = httpx.get(f"http://127.0.0.1:{port}/v1/keys", headers={"Authorization": f"Bearer {key}"})
     finally:
-        _stop(first)
-    second, second_lines = _start_up(tmp_path / "data", port)
-    _stop(second)
+        stop_up(first)
+    second, second_lines = start_up(tmp_path / "data", port)
+    stop_up(second)
     assert (tmp_path / "data" / "canopy.db").is_file()
     assert answer.status_code == 200
     assert [item["scopes"] for item in answer.json()] == [["admin"]]
@@ -104,7 +74,7 @@ def test_up_asked_to_stop_stops_its_worker_and_ends_cleanly(tmp_path: Path, endi
     """SIGTERM is how systemd and docker stop it, SIGINT is Ctrl-C: both end it in order, exit 0. Its
     worker's Fatal Python error at shutdown (a thread blocked reading stdin) was 5 of 5 SIGTERMs."""
     port = free_port()
-    process, _ = _start_up(tmp_path / "data", port)
+    process, _ = start_up(tmp_path / "data", port)
     worker = _worker_of(process)
     process.send_signal(ending)
     output, _ = process.communicate(timeout=STOP_WITHIN_S)
@@ -116,7 +86,7 @@ def test_up_asked_to_stop_stops_its_worker_and_ends_cleanly(tmp_path: Path, endi
 
 def test_up_killed_takes_its_worker_with_it(tmp_path: Path) -> None:
     port = free_port()
-    process, _ = _start_up(tmp_path / "data", port)
+    process, _ = start_up(tmp_path / "data", port)
     worker = _worker_of(process)
     process.send_signal(signal.SIGKILL)
     process.wait(timeout=60)

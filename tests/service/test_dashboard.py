@@ -1,0 +1,111 @@
+"""The dashboard in a real browser against a live `canopy up`: sign in with a key, see a job go from
+queued to succeeded, open its report and find the 3D viewer drawn with the tree's points (screenshot
+pixels); signing out ends the session. Session cookies read with their key's scopes and never write."""
+
+from __future__ import annotations
+
+import io
+import os
+import subprocess
+from collections.abc import Iterator
+from pathlib import Path
+
+import httpx
+import numpy as np
+import pytest
+from PIL import Image
+
+from tests.service.browser import chromium
+from tests.service.running import CANOPY, free_port, start_up, stop_up, upload_capture
+
+SCREENSHOTS = os.environ.get("CANOPY_SCREENSHOTS_DIR")
+"""Where the test leaves its screenshots (the README's come from here: CANOPY_SCREENSHOTS_DIR=docs/images)."""
+
+
+@pytest.fixture
+def up(tmp_path: Path) -> Iterator[tuple[str, str, str]]:
+    """`canopy up` on a fresh data folder: its address, a read key and a capture key."""
+    port, data = free_port(), tmp_path / "data"
+    process, _ = start_up(data, port)
+    try:
+        keys = []
+        for scope in ("read", "capture"):
+            made = subprocess.run(
+                [CANOPY, "keys", "create", "--scope", scope, "--name", f"dashboard {scope}"],
+                env={**os.environ, "CANOPY_DATA_DIR": str(data)},
+                capture_output=True,
+                text=True,
+                check=True,
+                timeout=60,
+            )
+            keys.append(made.stdout.strip().splitlines()[-1])
+        yield f"http://127.0.0.1:{port}", keys[0], keys[1]
+    finally:
+        stop_up(process)
+
+
+def _shot(page_or_locator: object, name: str, tmp_path: Path) -> np.ndarray:
+    folder = Path(SCREENSHOTS) if SCREENSHOTS else tmp_path
+    folder.mkdir(parents=True, exist_ok=True)
+    png = page_or_locator.screenshot(path=str(folder / name))  # type: ignore[attr-defined]
+    return np.asarray(Image.open(io.BytesIO(png)).convert("RGB")).astype(int)
+
+
+def test_sign_in_follow_a_job_to_its_report_and_see_the_tree_in_3d(
+    up: tuple[str, str, str], tree_capture: Path, tmp_path: Path
+) -> None:
+    server, read_key, capture_key = up
+    with chromium() as browser:
+        page = browser.new_page(viewport={"width": 1100, "height": 800})
+        errors: list[str] = []
+        page.on("pageerror", lambda error: errors.append(str(error)))
+        page.goto(server + "/")
+        page.fill("#key", read_key)
+        page.click("button[type=submit]")
+        page.wait_for_selector("#signed-in:not([hidden])")
+        assert "dashboard read" in page.inner_text("#who")
+
+        with httpx.Client(base_url=server, headers={"Authorization": f"Bearer {capture_key}"}) as client:
+            capture_id = upload_capture(client, tree_capture)
+            job_id = client.post(f"/v1/captures/{capture_id}/jobs").json()["id"]
+        row = f"tr[data-job='{job_id}']"
+        page.wait_for_selector(f"{row}[data-state=queued], {row}[data-state=running]", timeout=20_000)
+        page.wait_for_selector(f"{row}[data-state=succeeded]", timeout=120_000)
+        page.wait_for_selector("#farm tr[data-tree] a", timeout=10_000)  # the tree's latest H, W, D
+        _shot(page, "dashboard.png", tmp_path)
+
+        page.click(f"{row} a")
+        page.wait_for_selector("body[data-viewer=ready]", timeout=30_000)
+        canvas = page.locator("#viewer")
+        canvas.scroll_into_view_if_needed()
+        pixels = np.asarray(Image.open(io.BytesIO(canvas.screenshot())).convert("RGB")).astype(int)
+        page.evaluate("window.scrollTo(0, 0)")
+        _shot(page, "report.png", tmp_path)
+
+        page.goto(server + "/")
+        page.wait_for_selector("#sign-out:not([hidden])")
+        page.click("#sign-out")
+        page.wait_for_selector("#sign-in:not([hidden])")
+        assert page.request.get(server + "/v1/jobs").status == 401
+        assert errors == []
+    drawn = (pixels < 235).any(axis=2)
+    assert drawn.mean() > 0.02, f"only {drawn.mean():.3%} of the canvas is drawn"
+    assert ((pixels[:, :, 1] > pixels[:, :, 2] + 15) & drawn).sum() > 500, "no leaf-green points drawn"
+
+
+def test_a_session_reads_with_its_key_s_scopes_and_never_writes(up: tuple[str, str, str]) -> None:
+    server, read_key, _ = up
+    with httpx.Client(base_url=server) as browser:
+        signed_in = browser.post("/v1/session", headers={"Authorization": f"Bearer {read_key}"})
+        assert signed_in.status_code == 200 and signed_in.json()["key"]["scopes"] == ["read"]
+        cookie = signed_in.headers["set-cookie"]
+        assert "HttpOnly" in cookie and "SameSite=strict" in cookie and "Path=/" in cookie
+        assert browser.get("/v1/jobs").status_code == 200
+        assert (
+            browser.get("/v1/keys").status_code == 403
+        )  # the key has no admin scope: neither has its session
+        writing = browser.post("/v1/captures", content=b"{}")
+        assert writing.status_code == 401 and "reads only" in writing.json()["detail"]
+        assert browser.post("/v1/session").status_code == 401  # a session cannot open another
+        assert browser.delete("/v1/session").status_code == 204
+        assert browser.get("/v1/jobs").status_code == 401
