@@ -1,6 +1,7 @@
 """The dashboard in a real browser against a live `canopy up`: sign in with a key, see a job go from
-queued to succeeded, open its report and find the 3D viewer drawn with the tree's points (screenshot
-pixels); signing out ends the session. Session cookies read with their key's scopes and never write."""
+queued to succeeded, open its report, find its numbers and figures and the 3D viewer drawn with the tree's
+points (screenshot pixels); signing out ends the session. Session cookies read with their key's scopes
+and never write."""
 
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ import httpx
 import numpy as np
 import pytest
 from PIL import Image
+from playwright.sync_api import Page
 
 from tests.service.browser import chromium
 from tests.service.running import CANOPY, free_port, start_up, stop_up, upload_capture
@@ -44,11 +46,11 @@ def up(tmp_path: Path) -> Iterator[tuple[str, str, str]]:
         stop_up(process)
 
 
-def _shot(page_or_locator: object, name: str, tmp_path: Path) -> np.ndarray:
+def _shot(page: Page, name: str, tmp_path: Path) -> None:
+    """A screenshot of the page's viewport, kept under CANOPY_SCREENSHOTS_DIR when set."""
     folder = Path(SCREENSHOTS) if SCREENSHOTS else tmp_path
     folder.mkdir(parents=True, exist_ok=True)
-    png = page_or_locator.screenshot(path=str(folder / name))  # type: ignore[attr-defined]
-    return np.asarray(Image.open(io.BytesIO(png)).convert("RGB")).astype(int)
+    page.screenshot(path=str(folder / name))
 
 
 def test_sign_in_follow_a_job_to_its_report_and_see_the_tree_in_3d(
@@ -76,9 +78,22 @@ def test_sign_in_follow_a_job_to_its_report_and_see_the_tree_in_3d(
 
         page.click(f"{row} a")
         page.wait_for_selector("body[data-viewer=ready]", timeout=30_000)
+        with httpx.Client(base_url=server, headers={"Authorization": f"Bearer {read_key}"}) as client:
+            [measured] = client.get("/v1/jobs").json()["items"]
+            document = client.get(f"/v1/measurements/{measured['measurement_id']}").json()
+        assert page.inner_text("#height") == f"{document['height_m']:.2f} m"
+        assert page.inner_text("#width") == f"{document['width_m']:.2f} m"
+        assert page.inner_text("#thickness") == f"{document['thickness_m']:.2f} m"
+        figures = page.eval_on_selector_all(
+            ".figures img", "images => images.map(i => [i.alt, i.naturalWidth])"
+        )
+        assert {name for name, _ in figures} == set(document["figures"]) - {"report"}
+        assert all(width > 200 for _, width in figures)
         canvas = page.locator("#viewer")
         canvas.scroll_into_view_if_needed()
-        pixels = np.asarray(Image.open(io.BytesIO(canvas.screenshot())).convert("RGB")).astype(int)
+        pixels = _pixels(canvas.screenshot())
+        page.check("input[value=height]")
+        by_height = _pixels(canvas.screenshot())
         page.evaluate("window.scrollTo(0, 0)")
         _shot(page, "report.png", tmp_path)
 
@@ -88,9 +103,16 @@ def test_sign_in_follow_a_job_to_its_report_and_see_the_tree_in_3d(
         page.wait_for_selector("#sign-in:not([hidden])")
         assert page.request.get(server + "/v1/jobs").status == 401
         assert errors == []
+    # The canvas shows the tree: many pixels that are not the white background, in the points' own colours
+    # (leaf greens among them), and others once coloured by height.
     drawn = (pixels < 235).any(axis=2)
     assert drawn.mean() > 0.02, f"only {drawn.mean():.3%} of the canvas is drawn"
     assert ((pixels[:, :, 1] > pixels[:, :, 2] + 15) & drawn).sum() > 500, "no leaf-green points drawn"
+    assert np.abs(by_height - pixels).sum(axis=2).astype(bool).mean() > 0.01
+
+
+def _pixels(png: bytes) -> np.ndarray:
+    return np.asarray(Image.open(io.BytesIO(png)).convert("RGB")).astype(int)
 
 
 def test_a_session_reads_with_its_key_s_scopes_and_never_writes(up: tuple[str, str, str]) -> None:
