@@ -92,8 +92,10 @@ truth = json.load(open(sys.argv[3]))
 print("measured:     H %.3f  W %.3f  D %.3f m" % (measured["height_m"], measured["width_m"], measured["thickness_m"]))
 print("ground truth: H %.3f  W %.3f  D %.3f m" % (truth["height_m"], truth["width_m"], truth["thickness_m"]))
 print(f"fused cloud:  {sys.argv[1]}/v1/measurements/{job['measurement_id']}/cloud.ply")
+print(f"report:       {sys.argv[1]}/v1/measurements/{job['measurement_id']}/report")
 PY
 )" "$server" "$key" "$demo/tree_000/ground_truth.json"
+        echo "Dashboard and reports: $server/ (sign in with the key $key)"
         echo "Send capture folders from the laptop: .venv/bin/canopy upload FOLDER --server $server --key $key --wait"
         echo "The service keeps running at $server (API docs: $server/docs); Ctrl-C stops it."
         wait $up_pid
