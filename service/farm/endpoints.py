@@ -14,6 +14,7 @@ from canopy_core.cloud_io import read_cloud
 from service.captures.service import get_capture
 from service.conventions import ItemId, SinceQuery, strong_etag, unchanged
 from service.deps import ContextDep, ReadKey
+from service.farm.history import TreeHistory, history_csv, history_png, tree_history
 from service.farm.las import las_bytes
 from service.farm.schemas import MeasurementSummary, OrchardOut, OrchardSummary, RowOut, Summary, TreeOut
 from service.farm.service import (
@@ -39,6 +40,10 @@ __all__ = ["router"]
 
 router = APIRouter(prefix="/v1", tags=["farm"])
 _LISTS = problem_responses(BadRequest, NotFound)
+_PNG: dict[int | str, dict[str, Any]] = {200: {"content": {"image/png": {}}, "description": "A PNG figure"}}
+_SUMMARY_CSV = problem_responses(
+    NotFound, also={200: {"content": {"text/csv": {}}, "description": "One line per scope and metric"}}
+)
 
 
 NameQuery = Annotated[str | None, Query(description="Only the one of this exact name")]
@@ -115,6 +120,35 @@ def tree_measurements(
         return list_tree_measurements(session, tree_id, cursor=cursor, limit=limit)
 
 
+@router.get("/trees/{tree_id}/history", response_model=TreeHistory, responses=problem_responses(NotFound))
+def history(tree_id: ItemId, context: ContextDep, _key: ReadKey) -> TreeHistory:
+    """The tree's growth: its measurements' merged H, W and D, oldest capture first."""
+    with context.database.reading() as session:
+        return tree_history(session, tree_id)
+
+
+@router.get("/trees/{tree_id}/history.csv", response_class=Response, responses=_SUMMARY_CSV)
+def history_as_csv(tree_id: ItemId, request: Request, context: ContextDep, _key: ReadKey) -> Response:
+    """The tree's growth as CSV."""
+    with context.database.reading() as session:
+        text = history_csv(tree_history(session, tree_id))
+    return _csv_answer(request, text, f"tree-{tree_id}-history.csv")
+
+
+@router.get(
+    "/trees/{tree_id}/history.png", response_class=Response, responses=problem_responses(NotFound, also=_PNG)
+)
+def history_as_png(tree_id: ItemId, request: Request, context: ContextDep, _key: ReadKey) -> Response:
+    """The tree's H, W and D against the capture date."""
+    with context.database.reading() as session:
+        found = tree_history(session, tree_id)
+    etag = strong_etag(hashlib.sha256(f"{__version__}|{found.model_dump_json()}".encode()).hexdigest())
+    not_modified = unchanged(request, etag)
+    if not_modified is not None:
+        return not_modified
+    return Response(history_png(found), media_type="image/png", headers={"ETag": etag})
+
+
 @router.get(
     "/measurements.csv",
     response_class=StreamingResponse,
@@ -186,9 +220,6 @@ def cloud(measurement_id: ItemId, request: Request, context: ContextDep, _key: R
     )
 
 
-_PNG: dict[int | str, dict[str, Any]] = {200: {"content": {"image/png": {}}, "description": "A PNG figure"}}
-
-
 @router.get(
     "/measurements/{measurement_id}/figures/{name}.png",
     response_class=Response,
@@ -233,11 +264,10 @@ def report(measurement_id: ItemId, request: Request, context: ContextDep, _key: 
     with context.database.reading() as session:
         record = get_measurement(session, measurement_id)
         document = measurement_document(session, record)
-    etag = strong_etag(
-        hashlib.sha256(
-            f"{__version__}|{record.cloud_sha256}|{sorted((record.figures or {}).items())}".encode()
-        ).hexdigest()
-    )
+        growth = tree_history(session, record.tree_id)
+    figure_digests = sorted((record.figures or {}).items())
+    known = f"{__version__}|{record.cloud_sha256}|{figure_digests}|{growth.model_dump_json()}"
+    etag = strong_etag(hashlib.sha256(known.encode()).hexdigest())
     not_modified = unchanged(request, etag)
     if not_modified is not None:
         return not_modified
@@ -246,7 +276,9 @@ def report(measurement_id: ItemId, request: Request, context: ContextDep, _key: 
         figures = {name: context.store.read(digest) for name, digest in (record.figures or {}).items()}
     except FileNotFoundError as missing:
         raise ApiError(f"a file of measurement {measurement_id} is missing from the blob store") from missing
-    return HTMLResponse(report_html(document, figures, cloud), headers={"ETag": etag})
+    if len(growth.measurements) > 1:
+        figures["growth"] = history_png(growth)
+    return HTMLResponse(report_html(document, figures, cloud, growth), headers={"ETag": etag})
 
 
 def _figure(request: Request, context: ContextDep, record: MeasurementRecord, name: str) -> Response:
@@ -358,11 +390,6 @@ def orchard_summary_json(orchard_id: ItemId, context: ContextDep, _key: ReadKey)
     """The row summary's figures over the whole orchard, then for each of its rows."""
     with context.database.reading() as session:
         return orchard_summary(session, orchard_id)
-
-
-_SUMMARY_CSV = problem_responses(
-    NotFound, also={200: {"content": {"text/csv": {}}, "description": "One line per scope and metric"}}
-)
 
 
 @router.get("/rows/{row_id}/summary.csv", response_class=Response, responses=_SUMMARY_CSV)

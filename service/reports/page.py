@@ -15,13 +15,14 @@ import numpy as np
 from jinja2 import Environment, FileSystemLoader, select_autoescape
 
 from canopy_core.cloud_io import Cloud
+from service.farm.history import TreeHistory
 
 __all__ = ["MAX_VIEWER_POINTS", "report_html"]
 
 MAX_VIEWER_POINTS = 80_000
 """The 3D viewer gets at most this many points (a fixed random sample): enough to see the tree, light
 enough for a phone."""
-FIGURE_ORDER = ("elevation", "top", "density", "modes")
+FIGURE_ORDER = ("elevation", "top", "density", "modes", "growth")
 _TEMPLATES = Environment(
     loader=FileSystemLoader(Path(__file__).parent / "templates"),
     autoescape=select_autoescape(["html"]),
@@ -30,9 +31,12 @@ _TEMPLATES = Environment(
 )
 
 
-def report_html(document: dict[str, Any], figures: dict[str, bytes], cloud: Cloud) -> str:
+def report_html(
+    document: dict[str, Any], figures: dict[str, bytes], cloud: Cloud, growth: TreeHistory
+) -> str:
     """The report page of the measurement ``document`` (as ``GET /v1/measurements/{id}`` answers it), with
-    its PNG ``figures`` by name and its fused ``cloud``."""
+    its PNG ``figures`` by name (``growth`` among them when the tree was measured more than once), its fused
+    ``cloud`` and the tree's measurements over time."""
     views = [name for name in document["modes"] if name != "merged"]
     ordered = [name for name in FIGURE_ORDER if name in figures]
     ordered += sorted(name for name in figures if name not in FIGURE_ORDER and name != "report")
@@ -41,6 +45,7 @@ def report_html(document: dict[str, Any], figures: dict[str, bytes], cloud: Clou
         views=views,
         figures=[(name, _data_uri(figures[name])) for name in ordered],
         viewer=_viewer_data(cloud, document["marks"]),
+        growth=growth,
     )
 
 

@@ -86,7 +86,8 @@ async function loadFarm() {
           ...(latest
             ? [metres(latest.height_m), metres(latest.width_m), metres(latest.thickness_m), new Date(latest.captured_at).toLocaleDateString()].map((v) => element("td", {}, v))
             : [element("td", { colspan: "4", class: "muted" }, "not measured yet")]),
-          element("td", {}, latest ? element("a", { href: `/v1/measurements/${latest.id}/report` }, "report") : "")));
+          element("td", {}, latest ? element("a", { href: `/v1/measurements/${latest.id}/report` }, "report") : "",
+            latest ? " · " : "", latest ? element("a", { href: `/v1/trees/${tree.id}/history.png` }, "growth") : "")));
       }
       table.append(body);
       block.append(element("details", { open: "" }, element("summary", {}, `Row ${row.name}`), table));
