@@ -30,7 +30,7 @@ from service.farm.service import (
     measurements_csv,
     measurements_csv_etag,
 )
-from service.farm.summaries import orchard_summary, row_summary, summary_csv
+from service.farm.summaries import orchard_summary, row_figure_png, row_summary, summary_csv
 from service.models import Measurement as MeasurementRecord
 from service.pagination import CursorQuery, LimitQuery, Page
 from service.problems import ApiError, BadRequest, Conflict, InvalidContent, NotFound, problem_responses
@@ -381,6 +381,15 @@ def row_summary_json(row_id: ItemId, context: ContextDep, _key: ReadKey) -> Summ
     deviation over the latest measurement of each tree of the row; the trees beyond 2 standard deviations."""
     with context.database.reading() as session:
         return row_summary(session, row_id)
+
+
+@router.get(
+    "/rows/{row_id}/summary.png", response_class=Response, responses=problem_responses(NotFound, also=_PNG)
+)
+def row_summary_png(row_id: ItemId, context: ContextDep, _key: ReadKey) -> Response:
+    """Each tree's latest H and W along the row, the row's means, the trees beyond 2 standard deviations."""
+    with context.database.reading() as session:
+        return Response(row_figure_png(session, row_id), media_type="image/png")
 
 
 @router.get(

@@ -11,6 +11,7 @@ import csv
 import io
 
 import numpy as np
+from matplotlib.figure import Figure
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
@@ -20,7 +21,15 @@ from service.models import Orchard, Row, Tree
 from service.problems import NotFound
 from service.spreadsheet import safe_cell
 
-__all__ = ["OUTLIER_DEVIATIONS", "SUMMARY_METRICS", "orchard_summary", "row_summary", "summary_csv"]
+__all__ = [
+    "OUTLIER_DEVIATIONS",
+    "SUMMARY_METRICS",
+    "orchard_summary",
+    "row_figure",
+    "row_figure_png",
+    "row_summary",
+    "summary_csv",
+]
 
 SUMMARY_METRICS = ("height_m", "width_m", "thickness_m", "volume_hull_m3", "projected_area_m2")
 """H, W, D, crown volume (convex hull) and projected crown area, as each measurement's result names them."""
@@ -132,3 +141,44 @@ def summary_csv(summary: Summary) -> str:
                 ]
             )
     return buffer.getvalue()
+
+
+def row_figure_png(session: Session, row_id: int) -> bytes:
+    """:func:`row_figure` as PNG."""
+    buffer = io.BytesIO()
+    row_figure(session, row_id).savefig(buffer, format="png")
+    return buffer.getvalue()
+
+
+def row_figure(session: Session, row_id: int) -> Figure:
+    """The row at a glance: each tree's latest H and W as bars along the row (trees by name), the row's mean
+    of each as a dashed line, and the trees beyond 2 standard deviations marked; a 404 problem when there
+    is no such row."""
+    summary = row_summary(session, row_id)
+    trees = list(session.scalars(select(Tree).where(Tree.row_id == row_id).order_by(Tree.name, Tree.id)))
+    latest = latest_measurements(session, [tree.id for tree in trees])
+    measured = [tree for tree in trees if tree.id in latest]
+    far = {(outlier.tree_id, outlier.metric) for outlier in summary.outliers}
+    figure = Figure(figsize=(max(6.0, 0.45 * len(measured) + 2), 4.0), dpi=100, layout="constrained")
+    ax = figure.subplots()
+    positions = np.arange(len(measured))
+    for offset, (metric, short, colour) in enumerate(
+        (("height_m", "H", "tab:red"), ("width_m", "W", "tab:purple"))
+    ):
+        values = [float(latest[tree.id][0].result[metric]) for tree in measured]
+        bars = ax.bar(positions + (offset - 0.5) * 0.4, values, 0.4, color=colour, alpha=0.75, label=short)
+        for bar, tree in zip(bars, measured, strict=True):
+            bar.set_gid(f"{metric}-{tree.name}")
+            if (tree.id, metric) in far:
+                bar.set_edgecolor("black")
+                bar.set_linewidth(2)
+        if metric in summary.metrics:
+            ax.axhline(summary.metrics[metric].mean, color=colour, ls="--", lw=1, gid=f"mean-{metric}")
+    ax.set_xticks(positions, [tree.name for tree in measured], rotation=45 if len(measured) > 12 else 0)
+    ax.set_ylabel("m")
+    ax.set_title(
+        f"{summary.orchard} / {summary.name}: latest H and W of {summary.measured_trees} of {summary.trees} "
+        "trees (dashed: row mean; outlined: beyond 2 SD)"
+    )
+    ax.legend(loc="lower right", fontsize=8)
+    return figure

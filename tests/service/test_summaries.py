@@ -13,6 +13,8 @@ from pathlib import Path
 
 import pytest
 
+from service.database import Database
+from service.farm.summaries import row_figure
 from tests.service.running import Service, start_service, upload_capture, wait_for_job
 
 TREES = 6
@@ -102,3 +104,30 @@ def test_an_orchard_summary_holds_its_rows_and_the_csv_is_safe_to_open_in_a_spre
     )
     assert again.status_code == 304
     assert missing.status_code == 404 and missing.json()["code"] == "not_found"
+
+
+def test_the_row_figure_draws_each_tree_s_h_and_w_and_outlines_the_far_one(
+    summarised: tuple[Service, dict],
+) -> None:
+    service, measurements = summarised
+    with service.client() as client:
+        [orchard] = client.get("/v1/orchards", params={"name": ORCHARD}).json()["items"]
+        [row] = client.get(f"/v1/orchards/{orchard['id']}/rows").json()["items"]
+        png = client.get(f"/v1/rows/{row['id']}/summary.png")
+        outliers = client.get(f"/v1/rows/{row['id']}/summary").json()["outliers"]
+    assert png.headers["content-type"] == "image/png" and png.content.startswith(b"\x89PNG")
+    database = Database(f"sqlite:///{service.data_dir / 'canopy.db'}")
+    try:
+        with database.reading() as session:
+            ax = row_figure(session, row["id"]).axes[0]
+    finally:
+        database.dispose()
+    bars = {patch.get_gid(): patch for patch in ax.patches}
+    for tree, measurement in measurements.items():
+        assert bars[f"height_m-{tree}"].get_height() == measurement["height_m"]
+        assert bars[f"width_m-{tree}"].get_height() == measurement["width_m"]
+    outlined = {gid for gid, bar in bars.items() if bar.get_linewidth() == 2}
+    far = {f"{o['metric']}-{o['tree']}" for o in outliers if o["metric"] in ("height_m", "width_m")}
+    assert f"width_m-T{TREES - 1}" in outlined and outlined == far
+    mean = next(line for line in ax.lines if line.get_gid() == "mean-width_m")
+    assert mean.get_ydata()[0] == pytest.approx(statistics.mean(m["width_m"] for m in measurements.values()))
