@@ -90,7 +90,7 @@ async function loadFarm() {
             latest ? " · " : "", latest ? element("a", { href: `/v1/trees/${tree.id}/history.png` }, "growth") : "")));
       }
       table.append(body);
-      block.append(element("details", { open: "" }, element("summary", {}, `Row ${row.name}`), table));
+      block.append(element("details", { open: "" }, element("summary", {}, `Row ${row.name}`), element("div", { class: "scroll" }, table)));
     }
     blocks.push(block);
   }

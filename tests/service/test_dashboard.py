@@ -75,6 +75,7 @@ def test_sign_in_follow_a_job_to_its_report_and_see_the_tree_in_3d(
         page.wait_for_selector(f"{row}[data-state=succeeded]", timeout=120_000)
         page.wait_for_selector("#farm tr[data-tree] a", timeout=10_000)  # the tree's latest H, W, D
         _shot(page, "dashboard.png", tmp_path)
+        _fits_a_phone(page)
 
         page.click(f"{row} a")
         page.wait_for_selector("body[data-viewer=ready]", timeout=30_000)
@@ -96,6 +97,7 @@ def test_sign_in_follow_a_job_to_its_report_and_see_the_tree_in_3d(
         by_height = _pixels(canvas.screenshot())
         page.evaluate("window.scrollTo(0, 0)")
         _shot(page, "report.png", tmp_path)
+        _fits_a_phone(page)
 
         page.goto(server + "/")
         page.wait_for_selector("#sign-out:not([hidden])")
@@ -109,6 +111,17 @@ def test_sign_in_follow_a_job_to_its_report_and_see_the_tree_in_3d(
     assert drawn.mean() > 0.02, f"only {drawn.mean():.3%} of the canvas is drawn"
     assert ((pixels[:, :, 1] > pixels[:, :, 2] + 15) & drawn).sum() > 500, "no leaf-green points drawn"
     assert np.abs(by_height - pixels).sum(axis=2).astype(bool).mean() > 0.01
+
+
+def _fits_a_phone(page: Page) -> None:
+    """On a phone's screen (390 px wide) the page needs no sideways scrolling: wide tables scroll alone."""
+    size = page.viewport_size
+    page.set_viewport_size({"width": 390, "height": 844})
+    try:
+        assert page.evaluate("document.documentElement.scrollWidth") <= 390
+    finally:
+        assert size is not None
+        page.set_viewport_size(size)
 
 
 def _pixels(png: bytes) -> np.ndarray:
