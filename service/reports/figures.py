@@ -13,7 +13,7 @@ which tests and readers find it.
   D it gives (eqs. 7-8);
 - ``modes``: H, W and D per view and merged (the paper's V1, V2, V1+V2);
 - ``balls-<view>``: each view's colour image with the balls chosen and the spheres rejected;
-- ``report``: the first four in one figure.
+- ``report``: the first four in one picture.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ import io
 import numpy as np
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
-from PIL import Image
+from PIL import Image, ImageDraw, ImageFont
 
 from canopy_core.ball_preview import draw_ball_preview
 from canopy_core.capture import Capture
@@ -39,7 +39,7 @@ __all__ = [
     "draw_modes",
     "draw_top_view",
     "measurement_figures",
-    "report_figure",
+    "report_png",
 ]
 
 FIGURE_NAMES = ("report", "elevation", "top", "density", "modes")
@@ -47,49 +47,58 @@ FIGURE_NAMES = ("report", "elevation", "top", "density", "modes")
 _MAX_DRAWN_POINTS = 15_000
 """Points drawn per panel at most (a random, fixed sample): a cloud's 100 000 look the same, drawn slower."""
 _DPI = 100
+_TITLE_PX = 40
+"""Height of the composed report's title line, pixels."""
+_PHOTO_PNG_LEVEL = 1
+"""zlib level of the ball pictures (photographs): level 6 takes 2.5 times as long for 10 % fewer bytes."""
 _H, _BASE, _W = "tab:red", "tab:blue", "tab:purple"
 
 
 def measurement_figures(measurement: Measurement, capture: Capture) -> dict[str, bytes]:
     """Every figure of a measurement as PNG bytes, by name (see the module docstring)."""
     cloud, merged = measurement.cloud, measurement.merged
-    pngs = {"report": _png(report_figure(measurement))}
+    pngs: dict[str, bytes] = {}
     figure, ax = _single((6.4, 5.2))
     draw_elevation(ax, cloud, merged)
     pngs["elevation"] = _png(figure)
     figure, ax = _single((6.4, 5.2))
     draw_top_view(ax, cloud, merged, measurement.config.metrics)
     pngs["top"] = _png(figure)
-    figure, ax = _single((5.2, 5.2))
+    figure, ax = _single((6.4, 5.2))
     draw_height_density(ax, cloud, merged, measurement.config.metrics)
     pngs["density"] = _png(figure)
-    figure, ax = _single((6.4, 4.2))
+    figure, ax = _single((6.4, 5.2))
     draw_modes(ax, measurement.modes)
     pngs["modes"] = _png(figure)
+    manifest = measurement.manifest
+    title = (
+        f"{manifest.orchard} / {manifest.row} / {manifest.tree}, {manifest.captured_at}: "
+        f"H {merged.height_m:.2f} m, W {merged.width_m:.2f} m, D {merged.thickness_m:.2f} m"
+    )
+    pngs["report"] = report_png([pngs[name] for name in ("elevation", "top", "density", "modes")], title)
     for view, choice in zip(capture.views, measurement.ball_choices, strict=True):
         image = draw_ball_preview(view, choice, measurement.config.balls)
         buffer = io.BytesIO()
-        Image.fromarray(image).save(buffer, format="PNG")
+        Image.fromarray(image).save(buffer, format="PNG", compress_level=_PHOTO_PNG_LEVEL)
         pngs["balls-" + view.name.replace("/", "-")] = buffer.getvalue()
     return pngs
 
 
-def report_figure(measurement: Measurement) -> Figure:
-    """The four panels of a measurement (elevation, top view, height density, modes) in one figure, titled
-    with the tree and its merged H, W and D."""
-    figure = Figure(figsize=(13, 10), dpi=_DPI, layout="constrained")
-    (elevation, top), (density, modes) = figure.subplots(2, 2)
-    cloud, merged = measurement.cloud, measurement.merged
-    draw_elevation(elevation, cloud, merged)
-    draw_top_view(top, cloud, merged, measurement.config.metrics)
-    draw_height_density(density, cloud, merged, measurement.config.metrics)
-    draw_modes(modes, measurement.modes)
-    manifest = measurement.manifest
-    figure.suptitle(
-        f"{manifest.orchard} / {manifest.row} / {manifest.tree}, {manifest.captured_at}: "
-        f"H {merged.height_m:.2f} m, W {merged.width_m:.2f} m, D {merged.thickness_m:.2f} m"
+def report_png(panels: list[bytes], title: str) -> bytes:
+    """The panels (PNG, drawn once for their own figures) two to a row under ``title``, as one PNG: the
+    whole measurement on one picture, for a notebook or an e-mail."""
+    images = [Image.open(io.BytesIO(panel)).convert("RGB") for panel in panels]
+    width, height = max(i.width for i in images), max(i.height for i in images)
+    columns, rows = 2, (len(images) + 1) // 2
+    sheet = Image.new("RGB", (columns * width, _TITLE_PX + rows * height), "white")
+    for index, image in enumerate(images):
+        sheet.paste(image, ((index % columns) * width, _TITLE_PX + (index // columns) * height))
+    ImageDraw.Draw(sheet).text(
+        (sheet.width // 2, _TITLE_PX // 2), title, fill="black", anchor="mm", font=ImageFont.load_default(20)
     )
-    return figure
+    buffer = io.BytesIO()
+    sheet.save(buffer, format="PNG")
+    return buffer.getvalue()
 
 
 def draw_elevation(ax: Axes, cloud: Cloud, metrics: CanopyMetrics) -> None:
