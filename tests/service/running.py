@@ -27,6 +27,11 @@ CANOPY = str(Path(sys.executable).parent / "canopy")
 START_TIMEOUT_S = 60.0
 
 
+KEYLESS = {("DELETE", "/v1/session")}
+"""Signing out needs no key: it forgets the session the browser's own cookie names, if any, and clears the
+cookie, also when the session has expired (then no key would be accepted)."""
+
+
 def free_port() -> int:
     with socket.socket() as probe:
         probe.bind(("127.0.0.1", 0))
