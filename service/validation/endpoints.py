@@ -5,7 +5,7 @@ from __future__ import annotations
 import hashlib
 from typing import Annotated
 
-from fastapi import APIRouter, Query, Request, Response
+from fastapi import APIRouter, Depends, Query, Request, Response
 from starlette.concurrency import run_in_threadpool
 
 from service.bodies import read_body
@@ -54,17 +54,31 @@ async def upload_manual(request: Request, context: ContextDep, _key: CaptureKey)
     return await run_in_threadpool(context.database.write, lambda session: store_manual(session, lines))
 
 
-@router.get("/validation", response_model=Validation)
-def validation_json(
+def _paired(
     context: ContextDep,
     _key: ReadKey,
     orchard: OrchardQuery = None,
     row: RowQuery = None,
     window_days: WindowQuery = None,
 ) -> Validation:
+    """The validation the request's filters ask for (every GET route of this module answers it)."""
+    with context.database.reading() as session:
+        return validation(
+            session,
+            window_days=window_days or context.settings.validation_window_days,
+            orchard=orchard,
+            row=row,
+        )
+
+
+PairedDep = Annotated[Validation, Depends(_paired)]
+
+
+@router.get("/validation", response_model=Validation)
+def validation_json(result: PairedDep) -> Validation:
     """Each manual measurement paired with the tree's measurement nearest in time (or why none), and the
     paper's Table 1 over the pairs: n, R², RMSE and ARE of H, W and D per view mode and merged."""
-    return _validation(context, orchard, row, window_days)
+    return result
 
 
 _CSV_ANSWER = problem_responses(
@@ -76,47 +90,19 @@ _PNG_ANSWER = problem_responses(
 
 
 @router.get("/validation.csv", response_class=Response, responses=_CSV_ANSWER)
-def validation_table_csv(
-    request: Request,
-    context: ContextDep,
-    _key: ReadKey,
-    orchard: OrchardQuery = None,
-    row: RowQuery = None,
-    window_days: WindowQuery = None,
-) -> Response:
+def validation_table_csv(request: Request, result: PairedDep) -> Response:
     """Table 1 as CSV."""
-    text = validation_csv(_validation(context, orchard, row, window_days)).encode()
-    return _answer(request, text, "text/csv; charset=utf-8", "validation.csv")
+    return _answer(request, validation_csv(result).encode(), "text/csv; charset=utf-8", "validation.csv")
 
 
 @router.get("/validation.png", response_class=Response, responses=_PNG_ANSWER)
-def validation_scatter(
-    request: Request,
-    context: ContextDep,
-    _key: ReadKey,
-    orchard: OrchardQuery = None,
-    row: RowQuery = None,
-    window_days: WindowQuery = None,
-) -> Response:
+def validation_scatter(request: Request, result: PairedDep) -> Response:
     """Calculated against manual H, W and D, per view mode, with the 1:1 line."""
-    result = _validation(context, orchard, row, window_days)
     etag = strong_etag(hashlib.sha256(result.model_dump_json().encode()).hexdigest())
     not_modified = unchanged(request, etag)
     if not_modified is not None:
         return not_modified
     return Response(scatter_png(result), media_type="image/png", headers={"ETag": etag})
-
-
-def _validation(
-    context: ContextDep, orchard: str | None, row: str | None, window_days: float | None
-) -> Validation:
-    with context.database.reading() as session:
-        return validation(
-            session,
-            window_days=window_days or context.settings.validation_window_days,
-            orchard=orchard,
-            row=row,
-        )
 
 
 def _answer(request: Request, body: bytes, media_type: str, filename: str) -> Response:

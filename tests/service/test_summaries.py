@@ -11,6 +11,7 @@ import statistics
 from collections.abc import Iterator
 from pathlib import Path
 
+import httpx
 import pytest
 
 from service.database import Database
@@ -52,13 +53,19 @@ def summarised(
         service.stop()
 
 
+def _the_row(client: httpx.Client) -> dict:
+    """The one row of the summarised orchard."""
+    [orchard] = client.get("/v1/orchards", params={"name": ORCHARD}).json()["items"]
+    [row] = client.get(f"/v1/orchards/{orchard['id']}/rows").json()["items"]
+    return dict(row)
+
+
 def test_a_row_summary_gives_each_metric_s_statistics_and_names_the_tree_far_from_its_row(
     summarised: tuple[Service, dict],
 ) -> None:
     service, measurements = summarised
     with service.client() as client:
-        [orchard] = client.get("/v1/orchards", params={"name": ORCHARD}).json()["items"]
-        [row] = client.get(f"/v1/orchards/{orchard['id']}/rows").json()["items"]
+        row = _the_row(client)
         summary = client.get(f"/v1/rows/{row['id']}/summary").json()
     widths = [measurement["width_m"] for measurement in measurements.values()]
     assert (summary["scope"], summary["name"], summary["orchard"]) == ("row", ROW, ORCHARD)
@@ -111,8 +118,7 @@ def test_the_row_figure_draws_each_tree_s_h_and_w_and_outlines_the_far_one(
 ) -> None:
     service, measurements = summarised
     with service.client() as client:
-        [orchard] = client.get("/v1/orchards", params={"name": ORCHARD}).json()["items"]
-        [row] = client.get(f"/v1/orchards/{orchard['id']}/rows").json()["items"]
+        row = _the_row(client)
         png = client.get(f"/v1/rows/{row['id']}/summary.png")
         outliers = client.get(f"/v1/rows/{row['id']}/summary").json()["outliers"]
     assert png.headers["content-type"] == "image/png" and png.content.startswith(b"\x89PNG")
