@@ -28,6 +28,7 @@ from service.farm import endpoints as farm
 from service.jobs import endpoints as jobs
 from service.keys import endpoints as keys
 from service.keys import session_endpoints as sessions
+from service.metrics import RequestTimer, ServiceMetrics
 from service.problems import Problem, component_schemas, install_problem_handlers
 from service.settings import Settings
 from service.validation import endpoints as validation
@@ -71,8 +72,10 @@ def create_app(context: Context | None = None) -> FastAPI:
     )
     app.state.context = context = context or Context.from_settings(Settings())
     app.state.admission = Admission(context.settings)
+    app.state.metrics = metrics = ServiceMetrics(context.database)
     install_problem_handlers(app)
     app.add_middleware(ConditionalGet)
+    app.add_middleware(RequestTimer, metrics=metrics)  # outermost: the whole answer is timed
     for module in (health, captures, jobs, farm, keys, sessions, validation, dashboard):
         app.include_router(module.router)
     app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")

@@ -12,10 +12,20 @@ from service.admission import Admission
 from service.context import Context
 from service.keys.service import authenticate, grants
 from service.keys.sessions import SESSION_COOKIE, session_key
+from service.metrics import ServiceMetrics
 from service.models import ApiKey
 from service.problems import Forbidden, Unauthorized
 
-__all__ = ["AdminKey", "AdmissionDep", "AnyKey", "CaptureKey", "CaptureOrReadKey", "ContextDep", "ReadKey"]
+__all__ = [
+    "AdminKey",
+    "AdmissionDep",
+    "AnyKey",
+    "CaptureKey",
+    "CaptureOrReadKey",
+    "ContextDep",
+    "MetricsDep",
+    "ReadKey",
+]
 
 
 def get_context(request: Request) -> Context:
@@ -34,6 +44,15 @@ def get_admission(request: Request) -> Admission:
 
 
 AdmissionDep = Annotated[Admission, Depends(get_admission)]
+
+
+def get_metrics(request: Request) -> ServiceMetrics:
+    """The API process's Prometheus metrics."""
+    metrics: ServiceMetrics = request.app.state.metrics
+    return metrics
+
+
+MetricsDep = Annotated[ServiceMetrics, Depends(get_metrics)]
 
 
 _BEARER = HTTPBearer(

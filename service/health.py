@@ -1,11 +1,12 @@
-"""Liveness (the one route that answers without an API key) and readiness (a key with read scope)."""
+"""Liveness and Prometheus metrics (answered without an API key) and readiness (any key)."""
 
 from __future__ import annotations
 
-from fastapi import APIRouter
+from fastapi import APIRouter, Response
 from sqlalchemy.exc import SQLAlchemyError
 
-from service.deps import AnyKey, ContextDep
+from service.deps import AnyKey, ContextDep, MetricsDep
+from service.metrics import CONTENT_TYPE
 from service.problems import ApiError
 
 __all__ = ["router"]
@@ -31,3 +32,10 @@ def readyz(context: ContextDep, _key: AnyKey) -> dict[str, str]:
     except SQLAlchemyError as exc:
         raise NotReady(f"the database does not answer: {type(exc).__name__}") from exc
     return {"status": "ready"}
+
+
+@router.get("/metrics", response_class=Response, responses={200: {"content": {CONTENT_TYPE: {}}}})
+def metrics(registry: MetricsDep) -> Response:
+    """Prometheus metrics of this API process and of the job queue (no key: scrapers rarely carry one; it
+    tells counts and timings, never names or data)."""
+    return Response(registry.exposition(), media_type=CONTENT_TYPE)

@@ -85,6 +85,13 @@ class Settings(BaseSettings):
     job_max_attempts: int = Field(3, ge=1, description="Attempts before a crashing job stays failed.")
     job_timeout_s: float = Field(600.0, gt=0, description="A measurement running longer is stopped.")
     worker_poll_s: float = Field(0.5, gt=0, description="Pause between claims when the queue is empty.")
+    worker_metrics_port: int | None = Field(
+        None,
+        ge=1,
+        le=65535,
+        description="A worker answers Prometheus on this port (/metrics) when set: job durations by outcome "
+        "and by pipeline stage. Unset: no port is opened.",
+    )
     worker_nice: int = Field(
         10,
         ge=0,

@@ -11,6 +11,7 @@ import threading
 from types import FrameType
 
 from service.context import Context
+from service.metrics import WorkerMetrics
 from service.migrate import is_current
 from service.settings import Settings
 from worker.runner import Worker
@@ -40,7 +41,10 @@ def main() -> None:
             "(or `canopy up`) once to migrate it\n"
         )
         sys.exit(2)
-    worker = Worker(context)
+    metrics = WorkerMetrics()
+    if settings.worker_metrics_port is not None:
+        metrics.serve(settings.worker_metrics_port)
+    worker = Worker(context, metrics=metrics)
 
     def stop(_signal: int, _frame: FrameType | None) -> None:
         worker.stop()

@@ -24,6 +24,7 @@ from sqlalchemy.orm import Session
 from service.captures.service import get_capture
 from service.context import Context
 from service.jobs.queue import Lease, claim, complete, fail, release, renew
+from service.metrics import WorkerMetrics
 from service.models import CaptureFile
 from service.storage import OutOfSpace
 from worker.child import MeasurementSpec, run_measurement
@@ -63,10 +64,15 @@ class Worker:
         The service's settings, database and blob store.
     name
         Names this worker in leases and logs; unique per process by default.
+    metrics
+        Where job durations are counted (a registry of its own by default).
     """
 
-    def __init__(self, context: Context, *, name: str | None = None) -> None:
+    def __init__(
+        self, context: Context, *, name: str | None = None, metrics: WorkerMetrics | None = None
+    ) -> None:
         self.context = context
+        self.metrics = metrics or WorkerMetrics()
         self.owner = name or f"{socket.gethostname()}:{os.getpid()}:{uuid.uuid4().hex[:6]}"
         self._stopping = threading.Event()
         # A fork server that has imported the measurement core starts each job's process in milliseconds,
@@ -122,9 +128,12 @@ class Worker:
         started = time.monotonic()
         outcome = self._run(lease)
         self._record(lease, outcome)
-        log.info(
-            "job %d: %s after %.2f s", lease.job_id, _OUTCOME_LOG[outcome.kind], time.monotonic() - started
-        )
+        seconds = time.monotonic() - started
+        self.metrics.attempt_seconds.labels(outcome.kind).observe(seconds)
+        if outcome.kind == "ok":
+            for stage, stage_seconds in outcome.message[0].get("timings_s", {}).items():
+                self.metrics.stage_seconds.labels(stage).observe(stage_seconds)
+        log.info("job %d: %s after %.2f s", lease.job_id, _OUTCOME_LOG[outcome.kind], seconds)
         if outcome.kind == "no_space":
             log.warning("job %d: %s", lease.job_id, *outcome.message)
             self._stopping.wait(_WAIT_S)

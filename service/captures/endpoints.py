@@ -28,7 +28,7 @@ from service.captures.uploads import (
     record_file,
 )
 from service.conventions import ItemId
-from service.deps import AdminKey, AdmissionDep, CaptureKey, CaptureOrReadKey, ContextDep
+from service.deps import AdminKey, AdmissionDep, CaptureKey, CaptureOrReadKey, ContextDep, MetricsDep
 from service.models import CaptureFile
 from service.problems import (
     COMPONENT_REF,
@@ -141,6 +141,7 @@ async def put_file(
     response: Response,
     context: ContextDep,
     admission: AdmissionDep,
+    metrics: MetricsDep,
     key: CaptureKey,
     content_digest: Annotated[str | None, Header(description="sha-256=:<base64>: (RFC 9530)")] = None,
 ) -> FileOut:
@@ -207,6 +208,7 @@ async def put_file(
             response.status_code = 200
             return FileOut.model_validate(repeated, from_attributes=True)
         await run_in_threadpool(incoming.commit)
+        metrics.upload_bytes.inc(incoming.size_bytes)
     record, created = await run_in_threadpool(context.database.write, persist)
     response.status_code = 201 if created else 200
     return FileOut.model_validate(record, from_attributes=True)
