@@ -5,8 +5,6 @@ from __future__ import annotations
 
 import io
 
-from matplotlib.figure import Figure
-
 from service.validation.manual import METRIC_COLUMNS
 from service.validation.schemas import Validation
 from service.validation.service import MERGED
@@ -20,6 +18,9 @@ _MARKERS = ("^", "s", "D", "v", "P")
 def scatter_png(result: Validation) -> bytes:
     """A PNG of three panels (H, W, D), each the calculated values against the manual ones in metres, one
     marker per view mode (merged filled), with the 1:1 line and each mode's n and ARE in the legend."""
+    # Imported here, not at the top: matplotlib adds 0.9 s to every API start, and only figure routes draw.
+    from matplotlib.figure import Figure
+
     figure = Figure(figsize=(12, 4.2), dpi=100, layout="constrained")
     axes = figure.subplots(1, len(METRIC_COLUMNS))
     modes = [row.mode for row in result.table if row.metric == METRIC_COLUMNS[0]]
