@@ -19,7 +19,7 @@ from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from typing import TypeVar
 
-from service.problems import ServiceBusy, TooManyRequests
+from service.errors import ServiceBusy, TooManyRequests
 from service.settings import Settings
 
 __all__ = ["Admission"]

@@ -13,7 +13,7 @@ from collections.abc import AsyncIterator
 
 from fastapi import Request
 
-from service.problems import BadRequest, PayloadTooLarge, RequestTimeout
+from service.errors import BadRequest, PayloadTooLarge, RequestTimeout
 from service.storage import IncomingBlob
 
 __all__ = ["declared_length", "read_body", "receive_body"]

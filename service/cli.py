@@ -351,14 +351,14 @@ def keys_revoke(
     data: DataOpt = None,
 ) -> None:
     """Revoke a key: it stops working at once."""
+    from service.errors import ServiceError
     from service.keys.service import revoke_key
-    from service.problems import ApiError
 
     context = _keys_context(data)
     try:
         with context.database.writing() as session:
             record = revoke_key(session, prefix=prefix)
-    except ApiError as refused:
+    except ServiceError as refused:
         typer.echo(f"error: {refused.detail}", err=True)
         raise typer.Exit(2) from refused
     if record is None:

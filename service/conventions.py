@@ -20,7 +20,7 @@ from pydantic import AfterValidator, AwareDatetime
 from starlette.datastructures import MutableHeaders
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-from service.problems import BadRequest
+from service.errors import BadRequest
 
 __all__ = [
     "MAX_ID",

@@ -10,11 +10,11 @@ from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from service.admission import Admission
 from service.context import Context
+from service.errors import Forbidden, Unauthorized
 from service.keys.service import authenticate, grants
 from service.keys.sessions import SESSION_COOKIE, session_key
 from service.metrics import ServiceMetrics
 from service.models import ApiKey
-from service.problems import Forbidden, Unauthorized
 
 __all__ = [
     "AdminKey",

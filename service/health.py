@@ -6,16 +6,12 @@ from fastapi import APIRouter, Response
 from sqlalchemy.exc import SQLAlchemyError
 
 from service.deps import AnyKey, ContextDep, MetricsDep
+from service.errors import NotReady
 from service.metrics import CONTENT_TYPE
-from service.problems import ApiError
 
 __all__ = ["router"]
 
 router = APIRouter(tags=["health"])
-
-
-class NotReady(ApiError):
-    status, title, code = 503, "Not ready", "not_ready"
 
 
 @router.get("/healthz")

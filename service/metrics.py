@@ -4,7 +4,7 @@ the port ``CANOPY_WORKER_METRICS_PORT`` names.
 The API counts what passes through it (request latency by route, bytes of capture files stored) and reads
 the queue from the database at each scrape (jobs by state, queue depth, the oldest queued job's age), so
 every API process answers the same queue figures however many there are. Job durations are the workers':
-only a worker sees a job's stages (:class:`WorkerMetrics`).
+only a worker sees a job's stages (``worker/metrics.py``).
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from __future__ import annotations
 import time
 from collections.abc import Iterable
 
-from prometheus_client import CollectorRegistry, Counter, Histogram, generate_latest, start_http_server
+from prometheus_client import CollectorRegistry, Counter, Histogram, generate_latest
 from prometheus_client.core import GaugeMetricFamily, Metric
 from prometheus_client.registry import Collector
 from sqlalchemy import func, select
@@ -21,11 +21,10 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 from service.database import Database
 from service.models import JOB_STATES, Job, utc_now
 
-__all__ = ["CONTENT_TYPE", "RequestTimer", "ServiceMetrics", "WorkerMetrics"]
+__all__ = ["CONTENT_TYPE", "RequestTimer", "ServiceMetrics"]
 
 CONTENT_TYPE = "text/plain; version=0.0.4; charset=utf-8"
 _REQUEST_BUCKETS_S = (0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0, 10.0, 30.0)
-_JOB_BUCKETS_S = (0.1, 0.25, 0.5, 1.0, 2.0, 5.0, 10.0, 30.0, 60.0, 120.0, 300.0, 600.0)
 
 
 class ServiceMetrics:
@@ -109,28 +108,3 @@ class RequestTimer:
         route = scope.get("route")
         template = getattr(route, "path", None) or "unmatched"
         self.metrics.request_seconds.labels(scope["method"], template, f"{status // 100}xx").observe(seconds)
-
-
-class WorkerMetrics:
-    """A worker's metrics: each finished attempt's duration by outcome, and each measured job's stages."""
-
-    def __init__(self) -> None:
-        self.registry = CollectorRegistry()
-        self.attempt_seconds = Histogram(
-            "canopy_job_duration_seconds",
-            "Time a worker spent on a job attempt, by outcome (ok, error, crash, timeout, stopped, no_space)",
-            ["outcome"],
-            buckets=_JOB_BUCKETS_S,
-            registry=self.registry,
-        )
-        self.stage_seconds = Histogram(
-            "canopy_job_stage_duration_seconds",
-            "Time a measured job spent in each pipeline stage (load, filter, balls, register, ...)",
-            ["stage"],
-            buckets=_JOB_BUCKETS_S,
-            registry=self.registry,
-        )
-
-    def serve(self, port: int, *, host: str = "0.0.0.0") -> None:
-        """Answer Prometheus on ``port`` (``/metrics``) from a thread of this process."""
-        start_http_server(port, addr=host, registry=self.registry)

@@ -15,7 +15,7 @@ from sqlalchemy import Select
 from sqlalchemy.orm import InstrumentedAttribute
 
 from service.conventions import MAX_ID
-from service.problems import BadRequest
+from service.errors import BadRequest
 
 __all__ = ["CursorQuery", "LimitQuery", "Page", "decode_cursor", "encode_cursor", "keyset", "page_of"]
 

@@ -1,12 +1,13 @@
-"""RFC 9457 problem details: the one error base of the API, its subclasses, and the handlers that render
-every error (ours, the measurement core's, FastAPI's validation and Starlette's routing) as
-``application/problem+json`` naming the field, file or view at fault.
+"""RFC 9457 problem details: the status each of the service's errors (``service/errors.py``) is answered
+with, and the handlers that render every error (ours, the measurement core's, FastAPI's validation and
+Starlette's routing) as ``application/problem+json`` naming the field, file or view at fault.
 """
 
 from __future__ import annotations
 
 import logging
-from typing import Any, ClassVar
+from dataclasses import dataclass
+from typing import Any
 
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
@@ -16,25 +17,32 @@ from sqlalchemy.exc import OperationalError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from canopy_core.errors import CanopyError
+from service.errors import (
+    BadRequest,
+    ComeBackLater,
+    Conflict,
+    Forbidden,
+    InsufficientStorage,
+    InvalidContent,
+    NotFound,
+    NotReady,
+    PayloadTooLarge,
+    RequestTimeout,
+    ServiceBusy,
+    ServiceError,
+    TooManyRequests,
+    Unauthorized,
+)
 from service.storage import OutOfSpace
 
 __all__ = [
     "COMPONENT_REF",
+    "HTTP_KINDS",
     "PROBLEM_JSON",
-    "ApiError",
-    "BadRequest",
-    "Conflict",
-    "Forbidden",
-    "InsufficientStorage",
-    "InvalidContent",
-    "NotFound",
-    "PayloadTooLarge",
+    "HttpKind",
     "Problem",
-    "RequestTimeout",
-    "ServiceBusy",
-    "TooManyRequests",
-    "Unauthorized",
     "component_schemas",
+    "http_kind",
     "install_problem_handlers",
     "problem_responses",
 ]
@@ -44,84 +52,47 @@ PROBLEM_JSON = "application/problem+json"
 log = logging.getLogger("canopy.service")
 
 
-class ApiError(Exception):
-    """An error answered as problem+json with ``status``; ``code`` is the stable, machine-readable kind.
+@dataclass(frozen=True)
+class HttpKind:
+    """How one kind of :class:`ServiceError` is answered: its status and the problem's title."""
 
-    Locations (``field``, ``file``, ``view``) and any other keyword arguments become members of the
-    problem object, so clients never parse ``detail``.
-    """
-
-    status: ClassVar[int] = 500
-    title: ClassVar[str] = "Internal error"
-    code: ClassVar[str] = "internal_error"
-
-    def __init__(self, detail: str, *, code: str | None = None, **members: Any) -> None:
-        super().__init__(detail)
-        self.detail = detail
-        self.instance_code = code or self.code
-        self.members = {key: value for key, value in members.items() if value is not None}
-        self.headers: dict[str, str] = {}
+    status: int
+    title: str
 
 
-class BadRequest(ApiError):
-    status, title, code = 400, "Bad request", "bad_request"
+HTTP_KINDS: dict[type[ServiceError], HttpKind] = {
+    BadRequest: HttpKind(400, "Bad request"),
+    Unauthorized: HttpKind(401, "Missing or invalid API key"),
+    Forbidden: HttpKind(403, "API key lacks the scope"),
+    NotFound: HttpKind(404, "Not found"),
+    RequestTimeout: HttpKind(408, "Request timeout"),
+    Conflict: HttpKind(409, "Conflict"),
+    PayloadTooLarge: HttpKind(413, "Body too large"),
+    InvalidContent: HttpKind(422, "Invalid content"),
+    TooManyRequests: HttpKind(429, "Too many requests"),
+    ServiceBusy: HttpKind(503, "Service busy"),
+    NotReady: HttpKind(503, "Not ready"),
+    InsufficientStorage: HttpKind(507, "Insufficient storage"),
+    ServiceError: HttpKind(500, "Internal error"),
+}
+"""Every kind of the service's errors, with its answer; a subclass not listed answers as its nearest base."""
 
 
-class Unauthorized(ApiError):
-    status, title, code = 401, "Missing or invalid API key", "unauthorized"
-
-    def __init__(self, detail: str) -> None:
-        super().__init__(detail)
-        self.headers = {"WWW-Authenticate": 'Bearer realm="canopy"'}
+def http_kind(error: type[ServiceError]) -> HttpKind:
+    """How errors of class ``error`` are answered: as the nearest class in its hierarchy that is listed."""
+    return next(HTTP_KINDS[cls] for cls in error.__mro__ if cls in HTTP_KINDS)
 
 
-class Forbidden(ApiError):
-    status, title, code = 403, "API key lacks the scope", "forbidden"
-
-
-class NotFound(ApiError):
-    status, title, code = 404, "Not found", "not_found"
-
-
-class RequestTimeout(ApiError):
-    status, title, code = 408, "Request timeout", "body_timeout"
-
-    def __init__(self, detail: str, **members: Any) -> None:
-        super().__init__(detail, **members)
-        # The rest of the body may still come: close rather than read it as the next request.
-        self.headers = {"Connection": "close"}
-
-
-class Conflict(ApiError):
-    status, title, code = 409, "Conflict", "conflict"
-
-
-class PayloadTooLarge(ApiError):
-    status, title, code = 413, "Body too large", "body_too_large"
-
-
-class InvalidContent(ApiError):
-    status, title, code = 422, "Invalid content", "invalid_content"
-
-
-class _ComeBackLater(ApiError):
-    """An error the same request may not meet later: it says when to try again (``Retry-After``)."""
-
-    def __init__(self, detail: str, *, retry_after_s: int, code: str | None = None, **members: Any) -> None:
-        super().__init__(detail, code=code, **members)
-        self.headers = {"Retry-After": str(retry_after_s)}
-
-
-class TooManyRequests(_ComeBackLater):
-    status, title, code = 429, "Too many requests", "too_many_uploads"
-
-
-class ServiceBusy(_ComeBackLater):
-    status, title, code = 503, "Service busy", "service_busy"
-
-
-class InsufficientStorage(_ComeBackLater):
-    status, title, code = 507, "Insufficient storage", "out_of_space"
+def _headers(error: ServiceError) -> dict[str, str]:
+    """The headers an error's answer carries: the challenge of a 401, when to try again, and closing a
+    connection whose request body may still be arriving (rather than reading it as the next request)."""
+    if isinstance(error, Unauthorized):
+        return {"WWW-Authenticate": 'Bearer realm="canopy"'}
+    if isinstance(error, ComeBackLater):
+        return {"Retry-After": str(error.retry_after_s)}
+    if isinstance(error, RequestTimeout):
+        return {"Connection": "close"}
+    return {}
 
 
 class Problem(BaseModel):
@@ -154,13 +125,14 @@ def component_schemas(*models: type[BaseModel]) -> dict[str, Any]:
 
 
 def problem_responses(
-    *errors: type[ApiError], also: dict[int | str, dict[str, Any]] | None = None
+    *errors: type[ServiceError], also: dict[int | str, dict[str, Any]] | None = None
 ) -> dict[int | str, dict[str, Any]]:
     """OpenAPI ``responses=`` entries for the errors a route can answer with, plus ``also``."""
     responses: dict[int | str, dict[str, Any]] = {**(also or {})}
     for error in errors:
-        responses[error.status] = {
-            "description": error.title,
+        kind = http_kind(error)
+        responses[kind.status] = {
+            "description": kind.title,
             "content": {PROBLEM_JSON: {"schema": {"$ref": COMPONENT_REF.format(model=Problem.__name__)}}},
         }
     return responses
@@ -175,10 +147,11 @@ def problem(
     return JSONResponse(body, status_code=status, media_type=PROBLEM_JSON, headers=headers)
 
 
-def _api_error(_request: Request, exc: Exception) -> JSONResponse:
-    assert isinstance(exc, ApiError)
+def _service_error(_request: Request, exc: Exception) -> JSONResponse:
+    assert isinstance(exc, ServiceError)
+    kind = http_kind(type(exc))
     return problem(
-        exc.status, exc.title, exc.detail, code=exc.instance_code, headers=exc.headers, **exc.members
+        kind.status, kind.title, exc.detail, code=exc.instance_code, headers=_headers(exc), **exc.members
     )
 
 
@@ -253,7 +226,7 @@ def _out_of_space(request: Request, exc: Exception) -> JSONResponse:
         free_bytes=exc.free_bytes,
         min_free_bytes=exc.floor_bytes,
     )
-    return _api_error(request, refusal)
+    return _service_error(request, refusal)
 
 
 def _unexpected(_request: Request, exc: Exception) -> JSONResponse:
@@ -274,7 +247,7 @@ def install_problem_handlers(app: FastAPI) -> None:
     app.add_exception_handler(OperationalError, _database_unavailable)
     app.add_exception_handler(OutOfSpace, _out_of_space)
     app.add_exception_handler(Exception, _unexpected)
-    app.add_exception_handler(ApiError, _api_error)
+    app.add_exception_handler(ServiceError, _service_error)
     app.add_exception_handler(CanopyError, _canopy_error)
     app.add_exception_handler(RequestValidationError, _validation_error)
     app.add_exception_handler(StarletteHTTPException, _http_error)

@@ -11,9 +11,9 @@ import threading
 from types import FrameType
 
 from service.context import Context
-from service.metrics import WorkerMetrics
 from service.migrate import is_current
 from service.settings import Settings
+from worker.metrics import WorkerMetrics
 from worker.runner import Worker
 
 UNTIL_STDIN_CLOSES = "--until-stdin-closes"

@@ -24,10 +24,10 @@ from sqlalchemy.orm import Session
 from service.captures.service import get_capture
 from service.context import Context
 from service.jobs.queue import Lease, claim, complete, fail, release, renew
-from service.metrics import WorkerMetrics
 from service.models import CaptureFile
 from service.storage import OutOfSpace
 from worker.child import MeasurementSpec, run_measurement
+from worker.metrics import WorkerMetrics
 
 __all__ = ["Worker"]
 

@@ -29,9 +29,7 @@ from service.captures.uploads import (
 )
 from service.conventions import ItemId
 from service.deps import AdminKey, AdmissionDep, CaptureKey, CaptureOrReadKey, ContextDep, MetricsDep
-from service.models import CaptureFile
-from service.problems import (
-    COMPONENT_REF,
+from service.errors import (
     BadRequest,
     Conflict,
     Forbidden,
@@ -42,8 +40,9 @@ from service.problems import (
     RequestTimeout,
     ServiceBusy,
     TooManyRequests,
-    problem_responses,
 )
+from service.models import CaptureFile
+from service.problems import COMPONENT_REF, problem_responses
 
 __all__ = ["router"]
 

@@ -16,9 +16,9 @@ from canopy_core.capture import (
     stored_manifest,
 )
 from service.captures.schemas import CaptureOut
+from service.errors import Conflict, Forbidden, NotFound
 from service.keys.service import grants
 from service.models import ApiKey, Capture, CaptureFile, Job, Orchard, Row, Tree
-from service.problems import Conflict, Forbidden, NotFound
 
 __all__ = [
     "capture_manifest",

@@ -23,8 +23,8 @@ from canopy_core.capture import CameraModel, CaptureManifest, color_file_names, 
 from canopy_core.errors import CaptureError
 from canopy_core.images import open_color, open_depth
 from service.context import Context
+from service.errors import BadRequest, Conflict, InvalidContent
 from service.models import CaptureFile
-from service.problems import BadRequest, Conflict, InvalidContent
 
 __all__ = [
     "FileFacts",

@@ -14,6 +14,7 @@ from canopy_core.cloud_io import read_cloud
 from service.captures.service import get_capture
 from service.conventions import ItemId, SinceQuery, strong_etag, unchanged
 from service.deps import ContextDep, ReadKey
+from service.errors import BadRequest, Conflict, InvalidContent, NotFound, ServiceError
 from service.farm.history import TreeHistory, history_csv, history_png, tree_history
 from service.farm.las import las_bytes
 from service.farm.schemas import MeasurementSummary, OrchardOut, OrchardSummary, RowOut, Summary, TreeOut
@@ -33,7 +34,7 @@ from service.farm.service import (
 from service.farm.summaries import orchard_summary, row_figure_png, row_summary, summary_csv
 from service.models import Measurement as MeasurementRecord
 from service.pagination import CursorQuery, LimitQuery, Page
-from service.problems import ApiError, BadRequest, Conflict, InvalidContent, NotFound, problem_responses
+from service.problems import problem_responses
 from service.reports.page import report_html
 
 __all__ = ["router"]
@@ -211,7 +212,7 @@ def cloud(measurement_id: ItemId, request: Request, context: ContextDep, _key: R
         return not_modified
     path = context.store.path(record.cloud_sha256)
     if not path.is_file():
-        raise ApiError(f"the fused cloud of measurement {measurement_id} is missing from the blob store")
+        raise ServiceError(f"the fused cloud of measurement {measurement_id} is missing from the blob store")
     return FileResponse(
         path,
         media_type="application/octet-stream",
@@ -275,7 +276,9 @@ def report(measurement_id: ItemId, request: Request, context: ContextDep, _key: 
         cloud = read_cloud(context.store.read(record.cloud_sha256))
         figures = {name: context.store.read(digest) for name, digest in (record.figures or {}).items()}
     except FileNotFoundError as missing:
-        raise ApiError(f"a file of measurement {measurement_id} is missing from the blob store") from missing
+        raise ServiceError(
+            f"a file of measurement {measurement_id} is missing from the blob store"
+        ) from missing
     if len(growth.measurements) > 1:
         figures["growth"] = history_png(growth)
     return HTMLResponse(report_html(document, figures, cloud, growth), headers={"ETag": etag})
@@ -300,7 +303,7 @@ def _figure(request: Request, context: ContextDep, record: MeasurementRecord, na
     try:
         png = context.store.read(digest)
     except FileNotFoundError as missing:
-        raise ApiError(
+        raise ServiceError(
             f"figure {name!r} of measurement {record.id} is missing from the blob store"
         ) from missing
     return Response(png, media_type="image/png", headers={"ETag": etag})
@@ -352,7 +355,7 @@ def cloud_las(
     try:
         cloud = read_cloud(context.store.read(record.cloud_sha256))
     except FileNotFoundError as missing:
-        raise ApiError(
+        raise ServiceError(
             f"the fused cloud of measurement {measurement_id} is missing from the blob store"
         ) from missing
     if view is not None:

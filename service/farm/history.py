@@ -11,8 +11,8 @@ from pydantic import BaseModel
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
+from service.errors import NotFound
 from service.models import Capture, Measurement, Orchard, Row, Tree, utc_text
-from service.problems import NotFound
 from service.spreadsheet import safe_cell
 
 __all__ = ["HistoryPoint", "TreeHistory", "history_csv", "history_png", "tree_history"]

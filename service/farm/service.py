@@ -16,10 +16,10 @@ from sqlalchemy.orm import Session
 from canopy_core import __version__
 from canopy_core.metrics import CanopyMetrics
 from service.conventions import strong_etag
+from service.errors import NotFound
 from service.farm.schemas import MeasurementSummary, OrchardOut, RowOut, TreeOut
 from service.models import Capture, Measurement, Orchard, Row, Tree, utc_text
 from service.pagination import Page, keyset, page_of
-from service.problems import NotFound
 from service.spreadsheet import safe_cell
 
 __all__ = [

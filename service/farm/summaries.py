@@ -15,10 +15,10 @@ import numpy as np
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
+from service.errors import NotFound
 from service.farm.schemas import MetricStats, OrchardSummary, Outlier, Summary
 from service.farm.service import latest_measurements
 from service.models import Orchard, Row, Tree
-from service.problems import NotFound
 from service.spreadsheet import safe_cell
 
 if TYPE_CHECKING:

@@ -10,10 +10,11 @@ from sqlalchemy.orm import Session
 from service.captures.service import check_access, get_capture
 from service.conventions import MAX_ID, ItemId, SinceQuery
 from service.deps import CaptureKey, CaptureOrReadKey, ContextDep, ReadKey
+from service.errors import BadRequest, Conflict, Forbidden, InvalidContent, NotFound
 from service.jobs.schemas import JobOrder, JobOut, JobRequest, JobState
 from service.jobs.service import create_job, get_job, job_out, list_jobs
 from service.pagination import CursorQuery, LimitQuery, Page
-from service.problems import BadRequest, Conflict, Forbidden, InvalidContent, NotFound, problem_responses
+from service.problems import problem_responses
 
 __all__ = ["router"]
 

@@ -12,10 +12,10 @@ from sqlalchemy.orm import Session
 from canopy_core.errors import ConfigError
 from canopy_core.measure import config_for
 from service.captures.service import capture_manifest, missing_files
+from service.errors import Conflict, NotFound
 from service.jobs.schemas import JobError, JobOut
 from service.models import Capture, CaptureFile, Job, Measurement, Orchard, Row, Tree
 from service.pagination import Page, keyset, page_of
-from service.problems import Conflict, NotFound
 
 __all__ = ["create_job", "get_job", "job_out", "list_jobs"]
 

@@ -8,10 +8,11 @@ from fastapi import APIRouter
 
 from canopy_core import __version__
 from service.deps import AdminKey, AnyKey, ContextDep
+from service.errors import Conflict, NotFound
 from service.keys.schemas import KeyCreate, KeyCreated, KeyCurrent, KeyOut
 from service.keys.service import create_key, list_keys, revoke_key
 from service.models import ApiKey
-from service.problems import Conflict, NotFound, problem_responses
+from service.problems import problem_responses
 
 __all__ = ["key_out", "router"]
 

@@ -17,8 +17,8 @@ from datetime import timedelta
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
+from service.errors import Conflict, Unauthorized
 from service.models import ApiKey, utc_now, utc_text
-from service.problems import Conflict, Unauthorized
 
 __all__ = [
     "SCOPES",

@@ -8,10 +8,11 @@ from datetime import timedelta
 from fastapi import APIRouter, Request, Response
 
 from service.deps import AnyKey, ContextDep
+from service.errors import Unauthorized
 from service.keys.endpoints import key_out
 from service.keys.schemas import SessionOut
 from service.keys.sessions import SESSION_COOKIE, close_session, open_session
-from service.problems import Unauthorized, problem_responses
+from service.problems import problem_responses
 
 __all__ = ["router"]
 

@@ -11,9 +11,9 @@ from datetime import datetime, timedelta
 from sqlalchemy import delete, select
 from sqlalchemy.orm import Session
 
+from service.errors import Unauthorized
 from service.keys.service import usable
 from service.models import ApiKey, BrowserSession, utc_now
-from service.problems import Unauthorized
 
 __all__ = ["SESSION_COOKIE", "close_session", "open_session", "session_key"]
 

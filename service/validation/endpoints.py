@@ -11,7 +11,8 @@ from starlette.concurrency import run_in_threadpool
 from service.bodies import read_body
 from service.conventions import strong_etag, unchanged
 from service.deps import CaptureKey, ContextDep, ReadKey
-from service.problems import InvalidContent, PayloadTooLarge, RequestTimeout, problem_responses
+from service.errors import InvalidContent, PayloadTooLarge, RequestTimeout
+from service.problems import problem_responses
 from service.validation.figure import scatter_png
 from service.validation.manual import MANUAL_COLUMNS, read_manual_csv, store_manual
 from service.validation.schemas import ManualReceipt, Validation

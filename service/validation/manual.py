@@ -16,8 +16,8 @@ from datetime import date
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
+from service.errors import InvalidContent
 from service.models import ManualMeasurement, utc_now
-from service.problems import InvalidContent
 from service.validation.schemas import ManualReceipt
 
 __all__ = ["MANUAL_COLUMNS", "ManualLine", "read_manual_csv", "store_manual"]
