@@ -8,11 +8,15 @@ from alembic import command
 from alembic.config import Config
 from alembic.runtime.migration import MigrationContext
 from alembic.script import ScriptDirectory
+from sqlalchemy import text
 
 import migrations
 from service.database import Database
 
 __all__ = ["is_current", "upgrade"]
+
+_MIGRATION_LOCK = 0x63616E6F7079
+"""The PostgreSQL advisory lock key migrations hold (the bytes of "canopy")."""
 
 
 def _config() -> Config:
@@ -30,12 +34,19 @@ def upgrade(database: Database) -> None:
     """
     config = _config()
     with database.write_engine.connect() as connection:
+        if not database.is_sqlite:
+            # Processes started together (an API and its workers) migrate one after another; the others
+            # then find the database current. The lock is the session's, so it goes with the connection.
+            connection.execute(text("SELECT pg_advisory_lock(:key)"), {"key": _MIGRATION_LOCK})
         if database.is_sqlite:
             # Outside any transaction (the driver starts none on its own), where SQLite honours it.
             connection.connection.driver_connection.execute("PRAGMA foreign_keys=OFF")  # type: ignore[union-attr]
         config.attributes["connection"] = connection
         command.upgrade(config, "head")
         connection.commit()
+        if not database.is_sqlite:
+            connection.execute(text("SELECT pg_advisory_unlock(:key)"), {"key": _MIGRATION_LOCK})
+            connection.commit()
         if database.is_sqlite:
             broken = connection.exec_driver_sql("PRAGMA foreign_key_check").fetchall()
             connection.rollback()

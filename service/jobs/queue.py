@@ -5,20 +5,24 @@ whose lease ran out (its worker died), in one atomic step: ``BEGIN IMMEDIATE`` o
 ``FOR UPDATE SKIP LOCKED`` on PostgreSQL, so two workers never hold the same job. Renewing, completing and
 failing check that the worker still holds the lease, so a job is never both finished and retried, and its
 measurement is stored once.
+
+Leases are timed by the database's clock, not each worker's: on PostgreSQL workers on many machines
+compare the leases they write against one clock, so one whose clock runs fast cannot take a job whose
+lease has not run out. (SQLite's workers share a machine, and its clock.)
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from datetime import datetime, timedelta
+from datetime import UTC, datetime, timedelta
 from typing import Any
 
-from sqlalchemy import and_, or_, select
+from sqlalchemy import and_, func, or_, select
 from sqlalchemy.orm import Session
 
 from service.models import Capture, Job, Measurement, utc_now
 
-__all__ = ["Lease", "claim", "complete", "fail", "release", "renew"]
+__all__ = ["Lease", "claim", "complete", "database_now", "fail", "release", "renew"]
 
 
 @dataclass(frozen=True)
@@ -30,6 +34,15 @@ class Lease:
     owner: str
     attempt: int
     overrides: dict[str, Any] | None
+
+
+def database_now(session: Session) -> datetime:
+    """The current time by the database's clock (PostgreSQL), or this machine's (SQLite), aware UTC."""
+    if session.get_bind().dialect.name == "postgresql":
+        now = session.scalar(select(func.clock_timestamp()))
+        assert now is not None
+        return now.astimezone(UTC)
+    return utc_now()
 
 
 def _lost_error(attempts: int) -> dict[str, Any]:
@@ -47,7 +60,7 @@ def claim(session: Session, *, owner: str, lease_s: float, max_attempts: int) ->
     run again: whatever kills its workers would kill the next one too.
     """
     while True:
-        now = utc_now()
+        now = database_now(session)
         job = session.scalar(
             select(Job)
             .where(
@@ -102,7 +115,7 @@ def renew(
     job = _held(session, lease)
     if job is None:
         return False
-    job.lease_expires_at = utc_now() + timedelta(seconds=lease_s)
+    job.lease_expires_at = database_now(session) + timedelta(seconds=lease_s)
     if stage is not None:
         job.stage = stage
     if progress is not None:
@@ -148,7 +161,7 @@ def complete(
     )
     session.add(measurement)
     job.stage, job.progress = "done", 1.0
-    _finish(job, state="succeeded", error=None, now=utc_now())
+    _finish(job, state="succeeded", error=None, now=database_now(session))
     session.flush()
     return measurement.id
 
@@ -165,7 +178,7 @@ def fail(session: Session, lease: Lease, *, error: dict[str, Any], retry: bool, 
         job.state, job.error, job.stage, job.progress = "queued", error, None, 0.0
         job.lease_owner = job.lease_expires_at = None
     else:
-        _finish(job, state="failed", error=error, now=utc_now())
+        _finish(job, state="failed", error=error, now=database_now(session))
     return True
 
 

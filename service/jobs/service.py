@@ -42,6 +42,9 @@ def create_job(
     except ConfigError as exc:
         exc.field = f"config.{exc.field}" if exc.field else "config"
         raise
+    # Two requests for the same capture at once take turns here, so the second finds the first's job:
+    # PostgreSQL locks the capture's row (SQLite lets one writer in at a time anyway).
+    session.execute(select(Capture.id).where(Capture.id == capture.id).with_for_update())
     same = select(Job).where(Job.capture_id == capture.id)
     if idempotency_key is not None:
         earlier = session.scalar(same.where(Job.idempotency_key == idempotency_key))

@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 import httpx
+from sqlalchemy import create_engine, text
 
 from service.client.upload import files_to_send
 
@@ -53,6 +54,17 @@ class Service:
     admin_key: str
     server: subprocess.Popen[bytes]
     workers: list[subprocess.Popen[bytes]] = field(default_factory=list)
+
+    def query(self, sql: str, **parameters: Any) -> list[tuple[Any, ...]]:
+        """The rows of ``sql`` (named parameters as ``:name``) read straight from the service's database,
+        SQLite or PostgreSQL, as an auditor would."""
+        url = self.environment.get("CANOPY_DATABASE_URL") or f"sqlite:///{self.data_dir / 'canopy.db'}"
+        engine = create_engine(url)
+        try:
+            with engine.connect() as connection:
+                return [tuple(row) for row in connection.execute(text(sql), parameters)]
+        finally:
+            engine.dispose()
 
     def client(self, key: str | None = None) -> httpx.Client:
         """An HTTP client with ``key`` (default: the admin key) as bearer token."""
@@ -106,8 +118,9 @@ class Service:
                 process.wait()
 
 
-def start_service(root: Path, **settings: str) -> Service:
-    """Start `canopy serve` on a fresh data folder under ``root`` (settings as CANOPY_<NAME> values)."""
+def start_service(root: Path, *, database_url: str | None = None, **settings: str) -> Service:
+    """Start `canopy serve` on a fresh data folder under ``root`` (settings as CANOPY_<NAME> values), its
+    records in ``database_url`` (an empty database) or, by default, the data folder's SQLite file."""
     data_dir = root / "data"
     environment = {
         **os.environ,
@@ -116,6 +129,8 @@ def start_service(root: Path, **settings: str) -> Service:
         **{f"CANOPY_{name.upper()}": value for name, value in settings.items()},
     }
     environment.pop("CANOPY_DATABASE_URL", None)
+    if database_url is not None:
+        environment["CANOPY_DATABASE_URL"] = database_url
     keys = subprocess.run(
         [CANOPY, "keys", "create", "--scope", "admin", "--name", "tests", "--init"],
         env=environment,

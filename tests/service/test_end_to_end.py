@@ -18,18 +18,21 @@ import pytest
 
 from canopy_core.cloud_io import read_cloud
 from canopy_core.measure import measure
+from tests.service.postgres import BACKENDS, database_url
 from tests.service.running import Service, start_service, upload_capture, wait_for_job
 
 RELATIVE_TOLERANCE = 0.03
 """The paper's merged-view errors are 2.5-3.6 %; this capture measures well inside 3 %."""
 
 
-@pytest.fixture(scope="module")
-def service(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Service]:
-    """One server and one worker for the module: the capture is uploaded and measured once."""
-    running = start_service(tmp_path_factory.mktemp("end-to-end"))
-    yield running
-    running.stop()
+@pytest.fixture(scope="module", params=BACKENDS)
+def service(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Service]:
+    """One server and one worker for the module, on SQLite and then on PostgreSQL: the capture is uploaded
+    and measured once on each."""
+    with database_url(request.param) as url:
+        running = start_service(tmp_path_factory.mktemp("end-to-end"), database_url=url)
+        yield running
+        running.stop()
 
 
 @pytest.fixture(scope="module")

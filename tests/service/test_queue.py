@@ -9,13 +9,11 @@ from __future__ import annotations
 import json
 import threading
 import time
-import uuid
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from sqlalchemy import create_engine, select, text
-from sqlalchemy.exc import OperationalError
+from sqlalchemy import select
 
 from service.captures.service import create_capture
 from service.database import Database
@@ -23,8 +21,8 @@ from service.jobs.queue import Lease, claim, complete, fail, release, renew
 from service.keys.service import create_key
 from service.migrate import upgrade
 from service.models import Job, Measurement
+from tests.service.postgres import BACKENDS, database_url
 
-POSTGRES_URL = "postgresql+psycopg://postgres@127.0.0.1:5432/test"
 MANIFEST = {
     "format": "canopy-capture/1",
     "orchard": "North block",
@@ -35,31 +33,16 @@ MANIFEST = {
 }
 
 
-@pytest.fixture(params=["sqlite", "postgresql"])
+@pytest.fixture(params=BACKENDS)
 def database(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[Database]:
-    """A migrated, empty database: a SQLite file, or a schema of its own in the local PostgreSQL."""
-    if request.param == "sqlite":
-        database = Database(f"sqlite:///{tmp_path / 'queue.db'}")
-        upgrade(database)
-        yield database
-        database.dispose()
-        return
-    schema = f"queue_{uuid.uuid4().hex[:12]}"
-    admin = create_engine(POSTGRES_URL)
-    try:
-        with admin.begin() as connection:
-            connection.execute(text(f'CREATE SCHEMA "{schema}"'))
-    except OperationalError as exc:
-        pytest.fail(f"PostgreSQL at {POSTGRES_URL} is needed for the scale path's tests: {exc}")
-    database = Database(f"{POSTGRES_URL}?options=-csearch_path%3D{schema}")
-    try:
-        upgrade(database)
-        yield database
-    finally:
-        database.dispose()
-        with admin.begin() as connection:
-            connection.execute(text(f'DROP SCHEMA "{schema}" CASCADE'))
-        admin.dispose()
+    """A migrated, empty database: a SQLite file, or a schema of its own in the test PostgreSQL."""
+    with database_url(request.param) as url:
+        database = Database(url or f"sqlite:///{tmp_path / 'queue.db'}")
+        try:
+            upgrade(database)
+            yield database
+        finally:
+            database.dispose()
 
 
 def _queue_jobs(database: Database, count: int) -> list[int]:

@@ -7,7 +7,6 @@ import json
 import re
 import shutil
 import signal
-import sqlite3
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -16,16 +15,33 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from tests.service.postgres import BACKENDS, database_url
 from tests.service.running import Service, start_service, upload_capture, wait_for_job
 
 
+@pytest.fixture(scope="module", params=BACKENDS)
+def backend(request: pytest.FixtureRequest) -> str:
+    """Every test here runs on SQLite and on PostgreSQL."""
+    return str(request.param)
+
+
+@pytest.fixture
+def service(backend: str, tmp_path: Path) -> Iterator[Service]:
+    """A fresh `canopy serve` on its own database; start workers with ``service.start_worker()``."""
+    with database_url(backend) as url:
+        running = start_service(tmp_path, database_url=url, job_lease_s="3")
+        yield running
+        running.stop()
+
+
 @pytest.fixture(scope="module")
-def working_service(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Service]:
+def working_service(backend: str, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Service]:
     """A server with one worker, shared by the tests that need no worker of their own."""
-    running = start_service(tmp_path_factory.mktemp("worker"))
-    running.start_worker()
-    yield running
-    running.stop()
+    with database_url(backend) as url:
+        running = start_service(tmp_path_factory.mktemp("worker"), database_url=url)
+        running.start_worker()
+        yield running
+        running.stop()
 
 
 def _wait_until_measuring(service: Service, job_url: str, *, timeout_s: float = 60.0) -> dict[str, object]:
@@ -62,11 +78,7 @@ def test_job_of_a_killed_worker_is_finished_by_another_and_stored_once(
     assert job["state"] == "succeeded", job
     assert job["attempts"] == 2
     assert len(jobs) == 1
-    with sqlite3.connect(service.data_dir / "canopy.db") as database:
-        stored = database.execute(
-            "SELECT COUNT(*) FROM measurements WHERE job_id = ?", (job["id"],)
-        ).fetchone()
-    assert stored == (1,)
+    assert service.query("SELECT COUNT(*) FROM measurements WHERE job_id = :job", job=job["id"]) == [(1,)]
 
 
 def test_stopped_worker_hands_its_job_back_without_counting_the_attempt(
@@ -191,7 +203,6 @@ def _renamed(capture: Path, into: Path, *, tree: str) -> Path:
 
 
 def _files(service: Service, capture_id: int) -> list[tuple[str, str]]:
-    with sqlite3.connect(service.data_dir / "canopy.db") as database:
-        return database.execute(
-            "SELECT path, sha256 FROM capture_files WHERE capture_id = ?", (capture_id,)
-        ).fetchall()
+    return service.query(
+        "SELECT path, sha256 FROM capture_files WHERE capture_id = :capture", capture=capture_id
+    )
