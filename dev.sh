@@ -37,6 +37,34 @@ python_environment() {
 
 setup() { system_libraries; python_environment; }
 
+# The scale path's tests need a PostgreSQL server. CANOPY_TEST_POSTGRES_URL names one; else the local
+# server on 127.0.0.1:5432 is used when it lets user postgres into database test without a password; else
+# Debian's PostgreSQL is installed (when missing), its cluster started, and a role and database
+# canopy_test made for the tests. When none of this works the tests say so and skip.
+postgres_for_tests() {
+    if [ -n "${CANOPY_TEST_POSTGRES_URL:-}" ]; then return; fi
+    local probe='import psycopg; psycopg.connect("host=127.0.0.1 user=postgres dbname=test", connect_timeout=3)'
+    if "$VENV/bin/python" -c "$probe" 2>/dev/null; then return; fi
+    if ! ls /usr/lib/postgresql/*/bin/postgres >/dev/null 2>&1; then
+        echo "installing PostgreSQL for the scale path's tests"
+        as_root apt-get update -qq
+        as_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq postgresql >/dev/null \
+            || { echo "PostgreSQL could not be installed: its tests will be skipped" >&2; return; }
+    fi
+    local version name port
+    read -r version name port _ <<<"$(pg_lsclusters -h | sort -V | tail -1)"
+    if [ -z "${port:-}" ]; then echo "no PostgreSQL cluster: its tests will be skipped" >&2; return; fi
+    as_root pg_ctlcluster "$version" "$name" start >/dev/null 2>&1 || true  # already running is fine
+    as_root runuser -u postgres -- psql -q -p "$port" -v ON_ERROR_STOP=1 >/dev/null <<'SQL' \
+        || { echo "PostgreSQL did not take the test role: its tests will be skipped" >&2; return; }
+SELECT 'CREATE ROLE canopy_test LOGIN PASSWORD ''canopy_test'''
+WHERE NOT EXISTS (SELECT FROM pg_roles WHERE rolname = 'canopy_test') \gexec
+SELECT 'CREATE DATABASE canopy_test OWNER canopy_test'
+WHERE NOT EXISTS (SELECT FROM pg_database WHERE datname = 'canopy_test') \gexec
+SQL
+    export CANOPY_TEST_POSTGRES_URL="postgresql+psycopg://canopy_test:canopy_test@127.0.0.1:$port/canopy_test"
+}
+
 # Send one capture folder to the service with curl, as capture software would: create the capture, PUT each
 # file with its SHA-256 (RFC 9530 Content-Digest), start the job. Prints the job's address.
 send_capture() {
@@ -103,6 +131,7 @@ PY
     test)
         system_libraries "${TEST_APT_PACKAGES[@]}"
         python_environment
+        postgres_for_tests
         shift
         "$VENV/bin/python" -m pytest -q "$@"
         ;;
