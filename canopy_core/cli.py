@@ -9,14 +9,16 @@ from __future__ import annotations
 import json
 import os
 import sys
+from importlib.metadata import entry_points
 from pathlib import Path
 from typing import Annotated, Any
 
 import typer
 
 from canopy_core.errors import CanopyError
+from canopy_core.extras import require_extra
 
-__all__ = ["app", "main"]
+__all__ = ["COMMANDS_GROUP", "app", "command_line", "main"]
 
 app = typer.Typer(
     name="canopy",
@@ -160,6 +162,7 @@ def simulate(
     ] = "green",
 ) -> None:
     """Write synthetic captures of procedural apple trees, each with its ground_truth.json."""
+    require_extra("sim", "simulate")
     from canopy_core.simulate import simulate_captures
     from canopy_core.simulate.scenario import parse_scenario
 
@@ -177,10 +180,23 @@ def simulate(
         typer.echo(str(path))
 
 
+COMMANDS_GROUP = "canopy.commands"
+"""The entry-point group through which other parts of the install add their commands to ``canopy``: the
+capture client (``upload``, ``watch``) and the service (``serve``, ``worker``, ``up``, ...). Each entry
+is a Typer app whose commands join the top level."""
+
+
+def command_line() -> typer.Typer:
+    """The whole ``canopy`` command: the core's commands and every installed part's."""
+    for entry in sorted(entry_points(group=COMMANDS_GROUP), key=lambda entry: entry.name):
+        app.add_typer(entry.load())
+    return app
+
+
 def main() -> None:
-    """Console-script entry point: run the app, turning the core's errors into one line and exit 2."""
+    """Console-script entry point: run the command, turning the core's errors into one line and exit 2."""
     try:
-        app()
+        command_line()()
     except CanopyError as exc:
         typer.echo(f"error: {exc}", err=True)
         sys.exit(2)

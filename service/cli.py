@@ -1,8 +1,9 @@
-"""The whole ``canopy`` command line: the measurement core's commands, plus the service's ``serve``,
-``worker``, ``up`` (both together: the embedded default), ``keys``, ``backup`` and ``restore``.
+"""The service's commands: ``serve``, ``worker``, ``up`` (both together: the embedded default), ``keys``,
+``db``, ``backup`` and ``restore``. They join the ``canopy`` command through the ``canopy.commands`` entry
+point (pyproject.toml), which the core's command line reads; nothing here imports it.
 
-Heavy imports (FastAPI, SQLAlchemy, uvicorn) happen inside the commands, so ``canopy measure`` and
-``canopy --help`` do not pay for them.
+Each needs the service extra (``canopy[service]``) and says so when it is missing; its heavy imports
+(FastAPI, SQLAlchemy, uvicorn) happen inside the command, so ``canopy --help`` does not pay for them.
 """
 
 from __future__ import annotations
@@ -19,14 +20,15 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from canopy_core.cli import app
-from canopy_core.cli import main as core_main
+from canopy_core.extras import require_extra
 
 if TYPE_CHECKING:
     from service.context import Context
     from service.settings import Settings
 
-__all__ = ["app", "main"]
+__all__ = ["app"]
+
+app = typer.Typer(rich_markup_mode=None)
 
 HostOpt = Annotated[str, typer.Option(help="Address to listen on.")]
 PortOpt = Annotated[int, typer.Option(min=1, max=65535, help="TCP port to listen on.")]
@@ -38,6 +40,8 @@ keys_app = typer.Typer(
     help="Create, list and revoke API keys (in the database the settings name).", rich_markup_mode=None
 )
 app.add_typer(keys_app, name="keys")
+db_app = typer.Typer(help="The database's schema (in the database the settings name).", rich_markup_mode=None)
+app.add_typer(db_app, name="db")
 
 
 def _settings(data: Path | None = None) -> Settings:
@@ -105,6 +109,7 @@ def _serve(context: Context, host: str, port: int) -> None:
 @app.command()
 def serve(host: HostOpt = "127.0.0.1", port: PortOpt = 8000) -> None:
     """Run the HTTP API alone (start workers with `canopy worker`); migrates the database first."""
+    require_extra("service", "serve")
     _require_free_port(host, port)
     _serve(_migrated_context(_settings()), host, port)
 
@@ -112,6 +117,7 @@ def serve(host: HostOpt = "127.0.0.1", port: PortOpt = 8000) -> None:
 @app.command()
 def worker() -> None:
     """Run one worker: claims measurement jobs and runs them, until SIGTERM or Ctrl-C."""
+    require_extra("service", "worker")
     # The worker is its own program (python -m worker): the service never imports it.
     os.execv(sys.executable, [sys.executable, "-m", "worker"])
 
@@ -167,6 +173,7 @@ def up(host: HostOpt = "127.0.0.1", port: PortOpt = 8000, data: DataOpt = None) 
 
     Creates the database on first start, and an admin key, printed once.
     """
+    require_extra("service", "up")
     from service.keys.service import create_key, list_keys
 
     _require_free_port(host, port)
@@ -198,6 +205,7 @@ def backup_command(
 
     DEST may hold an earlier backup: it is brought up to date, copying only the new files.
     """
+    require_extra("service", "backup")
     from service.backup import BackupError, backup
 
     settings = _settings(data)
@@ -226,6 +234,7 @@ def restore_command(
     data: DataOpt = None,
 ) -> None:
     """Bring a backup back into the data folder, which must hold no database yet; every file is checked."""
+    require_extra("service", "restore")
     from service.backup import BackupError, restore
 
     settings = _settings(data)
@@ -238,56 +247,6 @@ def restore_command(
         f"Restored the backup of {report.taken_at}: {report.captures} captures, {report.files} files and "
         f"{report.measurements} measurements into {settings.data_dir.resolve()}"
     )
-
-
-ServerOpt = Annotated[str, typer.Option("--server", help="The service's address, e.g. http://10.0.0.5:8000.")]
-KeyOpt = Annotated[
-    str,
-    typer.Option(
-        "--key", envvar="CANOPY_KEY", help="API key (capture scope; read too for --wait).", show_default=False
-    ),
-]
-RootArg = Annotated[
-    Path, typer.Argument(metavar="ROOT", help="A capture folder, or a folder holding capture folders.")
-]
-
-
-@app.command()
-def upload(
-    root: RootArg,
-    server: ServerOpt,
-    key: KeyOpt,
-    wait: Annotated[
-        bool, typer.Option("--wait", help="Then wait for the measurements and show H, W, D.")
-    ] = False,
-    retry_for: Annotated[
-        float, typer.Option(min=1, help="Keep retrying a failing request this long, seconds.")
-    ] = 300.0,
-) -> None:
-    """Send every capture under ROOT that the server does not have yet, and start its measurement.
-
-    Each capture is checked first (nothing invalid is sent); a receipt in each folder records what the server
-    acknowledged, so a repeated, killed or interrupted upload resumes without sending anything twice.
-    """
-    from service.client.commands import run_upload
-
-    raise typer.Exit(run_upload(root, server=server, key=key, wait=wait, retry_for_s=retry_for))
-
-
-@app.command()
-def watch(
-    root: RootArg,
-    server: ServerOpt,
-    key: KeyOpt,
-    interval: Annotated[float, typer.Option(min=0.1, help="Seconds between scans of ROOT.")] = 10.0,
-    settle: Annotated[
-        float, typer.Option(min=0, help="A capture is sent once unchanged for this many seconds.")
-    ] = 5.0,
-) -> None:
-    """Keep running: send new capture folders under ROOT as they appear, and when the network is back."""
-    from service.client.commands import run_watch
-
-    raise typer.Exit(run_watch(root, server=server, key=key, interval_s=interval, settle_s=settle))
 
 
 @keys_app.command("create")
@@ -306,6 +265,7 @@ def keys_create(
     ] = False,
 ) -> None:
     """Create a key; it is printed alone on the last line, and never shown again."""
+    require_extra("service", "keys create")
     from service.keys.service import create_key, parse_lifetime
     from service.models import utc_text
 
@@ -330,6 +290,7 @@ def keys_create(
 @keys_app.command("list")
 def keys_list(data: DataOpt = None) -> None:
     """Every key: prefix, scopes, name, created, revoked, expires (UTC)."""
+    require_extra("service", "keys list")
     from service.keys.service import list_keys
 
     context = _keys_context(data)
@@ -351,6 +312,7 @@ def keys_revoke(
     data: DataOpt = None,
 ) -> None:
     """Revoke a key: it stops working at once."""
+    require_extra("service", "keys revoke")
     from service.errors import ServiceError
     from service.keys.service import revoke_key
 
@@ -367,6 +329,13 @@ def keys_revoke(
     typer.echo(f"revoked {prefix}")
 
 
-def main() -> None:
-    """Console-script entry point of ``canopy``."""
-    core_main()
+@db_app.command("upgrade")
+def db_upgrade(data: DataOpt = None) -> None:
+    """Apply the migrations the database lacks (`serve`, `worker` and `up` do it too when they start); on
+    PostgreSQL, processes upgrading at once take turns."""
+    require_extra("service", "db upgrade")
+    from service.migrate import current_revision
+
+    settings = _settings(data)
+    context = _migrated_context(settings)
+    typer.echo(f"database at revision {current_revision(context.database)}")

@@ -13,7 +13,7 @@ from sqlalchemy import text
 import migrations
 from service.database import Database
 
-__all__ = ["is_current", "upgrade"]
+__all__ = ["current_revision", "is_current", "upgrade"]
 
 _MIGRATION_LOCK = 0x63616E6F7079
 """The PostgreSQL advisory lock key migrations hold (the bytes of "canopy")."""
@@ -55,8 +55,12 @@ def upgrade(database: Database) -> None:
                 raise RuntimeError(f"the migration left rows whose references are broken: {broken[:5]}")
 
 
+def current_revision(database: Database) -> str | None:
+    """The migration the database is at (None: an empty database)."""
+    with database.read_engine.connect() as connection:
+        return MigrationContext.configure(connection).get_current_revision()
+
+
 def is_current(database: Database) -> bool:
     """True when the database is at the newest migration."""
-    head = ScriptDirectory.from_config(_config()).get_current_head()
-    with database.read_engine.connect() as connection:
-        return MigrationContext.configure(connection).get_current_revision() == head
+    return current_revision(database) == ScriptDirectory.from_config(_config()).get_current_head()

@@ -21,6 +21,7 @@ import migrations
 from service.database import Database
 from service.migrate import is_current, upgrade
 from service.models import Base
+from tests.service.postgres import BACKENDS, database_url
 from tests.service.running import CANOPY, Service, free_port, start_up, stop_up
 
 
@@ -291,3 +292,31 @@ def test_serve_and_worker_asked_to_stop_end_in_order(
     output, _ = process.communicate(timeout=STOP_WITHIN_S)
     assert "Traceback" not in output and "Fatal Python error" not in output, output
     assert process.returncode in (0, -ending), output  # serve ends by the signal itself, as uvicorn does
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_db_upgrade_run_by_three_processes_at_once_leaves_one_current_schema(
+    backend: str, tmp_path: Path
+) -> None:
+    with database_url(backend) as url:
+        environment = {**os.environ, "CANOPY_DATA_DIR": str(tmp_path / "data")}
+        if url is not None:
+            environment["CANOPY_DATABASE_URL"] = url
+        runs = [
+            subprocess.Popen(
+                [CANOPY, "db", "upgrade"],
+                env=environment,
+                stdout=subprocess.PIPE,
+                stderr=subprocess.PIPE,
+                text=True,
+            )
+            for _ in range(3)
+        ]
+        outputs = [run.communicate(timeout=120) for run in runs]
+        database = Database(url or f"sqlite:///{tmp_path / 'data' / 'canopy.db'}")
+        try:
+            assert is_current(database)
+        finally:
+            database.dispose()
+    assert [run.returncode for run in runs] == [0, 0, 0], outputs
+    assert {stdout.strip() for stdout, _ in outputs} == {"database at revision 0003"}
