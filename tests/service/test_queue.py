@@ -18,9 +18,10 @@ from sqlalchemy import select
 from service.captures.service import create_capture
 from service.database import Database
 from service.jobs.queue import Lease, claim, complete, fail, release, renew
+from service.jobs.service import create_job
 from service.keys.service import create_key
 from service.migrate import upgrade
-from service.models import Job, Measurement
+from service.models import Capture, CaptureFile, Job, Measurement
 from tests.service.postgres import BACKENDS, database_url
 
 MANIFEST = {
@@ -137,3 +138,34 @@ def test_released_job_is_claimed_again_without_counting_the_attempt(database: Da
         assert release(session, lease)
     again = _claim(database, "other")
     assert again is not None and again.attempt == 1
+
+
+def test_requests_for_the_same_capture_at_once_without_an_idempotency_key_queue_one_job(
+    database: Database,
+) -> None:
+    with database.writing() as session:
+        key = create_key(session, name="queue tests", scopes=["capture"]).record
+        capture, _ = create_capture(session, json.dumps(MANIFEST).encode(), key=key)
+        for view in MANIFEST["views"]:
+            for name in ("camera.json", "depth.png", "color.png"):
+                session.add(
+                    CaptureFile(capture_id=capture.id, path=f"{view}/{name}", sha256="0" * 64, size_bytes=1)
+                )
+    start = threading.Barrier(8)
+    created: list[bool] = []
+
+    def request() -> None:
+        start.wait()
+        with database.writing() as session:
+            mine = session.get_one(Capture, capture.id)
+            created.append(create_job(session, mine, overrides=None, idempotency_key=None)[1])
+
+    threads = [threading.Thread(target=request) for _ in range(8)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    with database.reading() as session:
+        jobs = list(session.scalars(select(Job).where(Job.capture_id == capture.id)))
+    assert len(jobs) == 1
+    assert sorted(created) == [False] * 7 + [True]
