@@ -329,6 +329,29 @@ def keys_revoke(
     typer.echo(f"revoked {prefix}")
 
 
+@app.command("gc")
+def gc_command(
+    data: DataOpt = None,
+    dry_run: Annotated[
+        bool, typer.Option("--dry-run", help="Count what would be removed; remove nothing.")
+    ] = False,
+) -> None:
+    """Remove stored files no record names (deleted captures, files whose record never came), last stored
+    more than CANOPY_BLOB_GC_GRACE_S ago (an hour); safe while the service runs and uploads arrive."""
+    require_extra("service", "gc")
+    from service.blob_gc import collect_garbage
+
+    settings = _settings(data)
+    context = _migrated_context(settings)
+    done = collect_garbage(context.database, context.store, grace_s=settings.blob_gc_grace_s, dry_run=dry_run)
+    verb = "would remove" if dry_run else "removed"
+    typer.echo(
+        f"{done.blobs} blobs: {done.referenced} named by a record, {done.recent} unnamed but stored "
+        f"within the grace period, {verb} {done.removed} ({done.bytes_freed / 1e6:.1f} MB freed)"
+        + (f"; put back {done.restored} a stopped run had set aside" if done.restored else "")
+    )
+
+
 @db_app.command("upgrade")
 def db_upgrade(data: DataOpt = None) -> None:
     """Apply the migrations the database lacks (`serve`, `worker` and `up` do it too when they start); on

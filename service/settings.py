@@ -81,6 +81,12 @@ class Settings(BaseSettings):
         "unfinished (a killed server, a dropped connection) and is removed, at start-up and every "
         "stale_upload_s / 4 seconds after.",
     )
+    blob_gc_grace_s: float = Field(
+        3600.0,
+        ge=0,
+        description="`canopy gc` removes a blob no record names only when it was last stored more than this "
+        "long ago, seconds: the records naming a blob are written seconds after it, never an hour.",
+    )
     job_lease_s: float = Field(30.0, gt=0, description="A worker silent this long loses its job.")
     job_max_attempts: int = Field(3, ge=1, description="Attempts before a crashing job stays failed.")
     job_timeout_s: float = Field(600.0, gt=0, description="A measurement running longer is stopped.")

@@ -3,7 +3,8 @@
 A blob is written to a temporary file (``.incoming-*`` in the store's folder) while its SHA-256 is taken,
 flushed to disk, renamed into place under its digest and its folder flushed, so it is either whole or
 absent after a crash. The database records a blob's digest only after the blob is durable; a crash between
-the two leaves an unreferenced blob and never a record without its bytes. A crash while a file arrives
+the two leaves an unreferenced blob and never a record without its bytes; the garbage collector
+(``service/blob_gc.py``) removes such blobs, and those of deleted captures. A crash while a file arrives
 leaves its temporary file, which :meth:`BlobStore.remove_stale_incoming` clears.
 """
 
@@ -24,6 +25,7 @@ from types import TracebackType
 __all__ = ["BlobStore", "IncomingBlob", "OutOfSpace", "sha256_hex"]
 
 _INCOMING_PREFIX = ".incoming-"
+_DOOMED_PREFIX = ".doomed-"
 
 
 def sha256_hex(data: bytes) -> str:
@@ -101,10 +103,16 @@ class IncomingBlob:
         self.finish()
         sha256 = self.sha256
         target = self._store.path(sha256)
-        if target.is_file() and target.stat().st_size == self.size_bytes:
-            # Another upload of the same bytes renamed them into place; make sure that rename is durable.
-            _fsync_directory(target.parent)
-            return sha256
+        try:
+            # The same bytes are stored already (another upload, or an earlier capture): mark them as just
+            # committed, so the garbage collector leaves them alone while a record comes to name them
+            # (see BlobStore.remove_unless_touched), and make sure their rename is durable.
+            os.utime(target)
+            if target.stat().st_size == self.size_bytes:
+                _fsync_directory(target.parent)
+                return sha256
+        except FileNotFoundError:  # not stored, or taken away by the collector just now: store ours
+            pass
         with self._store.full_disk_is_out_of_space():
             if not target.parent.is_dir():
                 target.parent.mkdir(parents=True, exist_ok=True)
@@ -167,6 +175,47 @@ class BlobStore:
         """The bytes of a stored blob; raises FileNotFoundError when it is absent."""
         return self.path(sha256).read_bytes()
 
+    def stored(self) -> Iterator[tuple[str, float]]:
+        """Every stored blob's digest and the time (epoch seconds) it was last committed."""
+        for folder in sorted(self.root.glob("[0-9a-f][0-9a-f]")):
+            for blob in folder.iterdir():
+                if len(blob.name) == 64 and not blob.name.startswith("."):
+                    with contextlib.suppress(FileNotFoundError):  # removed meanwhile
+                        yield blob.name, blob.stat().st_mtime
+
+    def remove_unless_touched(self, sha256: str, *, since: float) -> int | None:
+        """Remove a blob unless it was committed at or after ``since`` (epoch seconds); the bytes freed, or
+        None when it was kept (or is gone).
+
+        The blob is first renamed aside and its time read again there: an upload of the same bytes marks
+        the blob before its record is written, and does so either before the rename (the mark is seen
+        and the blob is put back) or after it (the upload finds no blob and stores its own copy). A
+        collector stopped between the two leaves the blob aside; :meth:`restore_set_aside` puts it back.
+        """
+        target = self.path(sha256)
+        doomed = _doomed_path(target)
+        try:
+            os.replace(target, doomed)
+        except FileNotFoundError:
+            return None
+        status = doomed.stat()
+        if status.st_mtime >= since:
+            os.replace(doomed, target)
+            return None
+        doomed.unlink()
+        _fsync_directory(target.parent)
+        return status.st_size
+
+    def restore_set_aside(self) -> int:
+        """Put back the blobs a stopped collector had set aside but not yet checked; how many."""
+        restored = 0
+        for doomed in self.root.glob(f"??/{_DOOMED_PREFIX}*"):
+            target = doomed.with_name(doomed.name.removeprefix(_DOOMED_PREFIX))
+            with contextlib.suppress(FileNotFoundError):
+                os.replace(doomed, target)
+                restored += 1
+        return restored
+
     def remove_stale_incoming(self, *, older_than_s: float) -> int:
         """Remove the temporary files of uploads that ended without finishing (a killed server, a dropped
         connection mid-write) untouched for ``older_than_s``; a file still arriving is written to all the
@@ -182,6 +231,10 @@ class BlobStore:
             except FileNotFoundError:  # finished or removed meanwhile
                 continue
         return removed
+
+
+def _doomed_path(target: Path) -> Path:
+    return target.with_name(f"{_DOOMED_PREFIX}{target.name}")
 
 
 def _fsync_directory(path: Path) -> None:
