@@ -51,7 +51,7 @@ def collect_garbage(
     ``dry_run``, only count them)."""
     restored = 0 if dry_run else store.restore_set_aside()
     since = time.time() - grace_s
-    candidates = [(digest, committed) for digest, committed in store.stored()]
+    candidates = list(store.stored())
     with database.reading() as session:
         named = referenced_blobs(session)
     unnamed_old = [digest for digest, committed in candidates if digest not in named and committed < since]

@@ -47,9 +47,8 @@ def test_gc_removes_deleted_captures_and_orphans_and_keeps_every_named_blob(
         assert job["state"] == "succeeded", job
         other = _other_tree(tree_capture, tmp_path)
         deleted_capture = upload_capture(client, other)
-        deleted_files = dict(
-            service.query(f"SELECT path, sha256 FROM capture_files WHERE capture_id = {deleted_capture}")
-        )
+        query = "SELECT path, sha256 FROM capture_files WHERE capture_id = :capture"
+        deleted_files = dict(service.query(query, capture=deleted_capture))
         assert client.delete(f"/v1/captures/{deleted_capture}").status_code == 204
     orphan = store.put(b"a cloud whose worker died before its record was written")
     _age(store, DAY_S)
