@@ -15,9 +15,13 @@ function element(tag, attributes = {}, ...children) {
   return node;
 }
 
+// The session ended (signed out here or elsewhere, or expired) while a request was on its way: the sign-in
+// form is shown, and whatever was loading stops.
+class SignedOut extends Error {}
+
 async function api(path, options = {}) {
   const response = await fetch(path, { credentials: "same-origin", cache: "no-store", ...options });
-  if (response.status === 401) { showSignIn("Signed out: sign in again."); throw new Error("signed out"); }
+  if (response.status === 401) { showSignIn("Signed out: sign in again."); throw new SignedOut("signed out"); }
   return response;
 }
 
@@ -29,7 +33,11 @@ function showSignIn(message = "") {
 async function showSignedIn(key) {
   $("#sign-in").hidden = true; $("#signed-in").hidden = false; $("#sign-out").hidden = false;
   $("#who").textContent = `${key.name} (${key.prefix}, ${key.scopes.join(" ")})`;
-  await Promise.all([pollJobs(), loadFarm()]);
+  try {
+    await Promise.all([pollJobs(), loadFarm()]);
+  } catch (error) {
+    if (!(error instanceof SignedOut)) throw error;  // signed out while the lists loaded: nothing to show
+  }
 }
 
 function metres(value) { return `${value.toFixed(2)} m`; }
