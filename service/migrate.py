@@ -34,19 +34,17 @@ def upgrade(database: Database) -> None:
     """
     config = _config()
     with database.write_engine.connect() as connection:
-        if not database.is_sqlite:
-            # Processes started together (an API and its workers) migrate one after another; the others
-            # then find the database current. The lock is the session's, so it goes with the connection.
-            connection.execute(text("SELECT pg_advisory_lock(:key)"), {"key": _MIGRATION_LOCK})
         if database.is_sqlite:
             # Outside any transaction (the driver starts none on its own), where SQLite honours it.
             connection.connection.driver_connection.execute("PRAGMA foreign_keys=OFF")  # type: ignore[union-attr]
+        else:
+            # Processes started together (an API and its workers) migrate one after another; the others
+            # then find the database current. The lock belongs to the migration's transaction, so it is
+            # released at its commit or rollback, also when a migration fails.
+            connection.execute(text("SELECT pg_advisory_xact_lock(:key)"), {"key": _MIGRATION_LOCK})
         config.attributes["connection"] = connection
         command.upgrade(config, "head")
         connection.commit()
-        if not database.is_sqlite:
-            connection.execute(text("SELECT pg_advisory_unlock(:key)"), {"key": _MIGRATION_LOCK})
-            connection.commit()
         if database.is_sqlite:
             broken = connection.exec_driver_sql("PRAGMA foreign_key_check").fetchall()
             connection.rollback()

@@ -179,9 +179,13 @@ class BlobStore:
         """Every stored blob's digest and the time (epoch seconds) it was last committed."""
         for folder in sorted(self.root.glob("[0-9a-f][0-9a-f]")):
             for blob in folder.iterdir():
-                if len(blob.name) == 64 and not blob.name.startswith("."):
-                    with contextlib.suppress(FileNotFoundError):  # removed meanwhile
-                        yield blob.name, blob.stat().st_mtime
+                if len(blob.name) != 64 or blob.name.startswith("."):
+                    continue
+                try:
+                    committed = blob.stat().st_mtime
+                except FileNotFoundError:  # removed meanwhile
+                    continue
+                yield blob.name, committed
 
     def remove_unless_touched(self, sha256: str, *, since: float) -> int | None:
         """Remove a blob unless it was committed at or after ``since`` (epoch seconds); the bytes freed, or
