@@ -21,7 +21,7 @@ import numpy as np
 from canopy_core.balls import BallCandidate, Objection, ViewBallCandidates
 from canopy_core.config import BallConfig
 from canopy_core.errors import BallNotFound, RegistrationFailed
-from canopy_core.ground import CAMERA_UP, GroundFrame, GroundPlane
+from canopy_core.ground import CAMERA_UP, GroundFrame, GroundPlane, horizontal_distance, view_trunk_foot
 
 __all__ = [
     "BallChoice",
@@ -258,9 +258,16 @@ def select_balls(
     # agrees already: a look-alike that both views see (an apple lying on the ground) agrees too, and must
     # compete with a ball one view sees whole and another only in part. Only if no combination agrees then,
     # each ball is sought at the distance another view puts it from a ball this view has (which may
-    # complete a triangle that places the rest), even where look-alikes of its colour were found.
+    # complete a triangle that places the rest), even where look-alikes of its colour were found; and only
+    # if that fails too, where the trunk and the one ball two views share place it.
     searches = (
-        (_search_where_placed, _search_on_circles, _search_where_placed)
+        (
+            _search_where_placed,
+            _search_on_circles,
+            _search_where_placed,
+            _search_round_trunk,
+            _search_where_placed,
+        )
         if len(views) > 1 and len(config.colors) >= 3
         else ()
     )
@@ -377,6 +384,99 @@ def _search_on_circles(
                     shortlist.plausible[color].append(found)
                     added[target].append(found)
     return added
+
+
+def _search_round_trunk(
+    views: Sequence[ViewBallCandidates],
+    shortlists: list[_Shortlist],
+    per_view: list[list[tuple[float, tuple[BallCandidate, ...]]]],
+    grounds: Sequence[GroundPlane | None],
+    config: BallConfig,
+) -> list[list[BallCandidate]]:
+    """Look for each of a view's balls where the one ball it shares with another view, the ground and the
+    trunk place it: the ball shared fixes where, the ground's up fixes two turns and the trunk, seen in both
+    views (:func:`view_trunk_foot`), the turn about the up. The other view's ball is carried by that rigid
+    motion, and a sphere found there (:meth:`ViewBallCandidates.sphere_near`) joins the colour's shortlist.
+
+    For views that each see two balls well but not the same two, their third a fragment 4 m away that
+    grass and leaves outscore all along the circle round the shared ball (:func:`_search_on_circles`): the
+    trunk narrows the circle to one place. The ball's distance from the trunk must agree between the views
+    (``max_trunk_reach_mismatch_m``), else they found different trunks, or a post, and nothing is placed.
+    Returns, per view, the spheres added."""
+    del per_view  # one shared ball suffices here
+    feet: dict[tuple[int, str], np.ndarray | None] = {}
+
+    def foot(index: int, color: str) -> np.ndarray | None:
+        """The trunk's foot in view ``index``, sought round its likeliest ``color`` ball."""
+        if (index, color) not in feet:
+            ground, scene = grounds[index], views[index].scene
+            feet[index, color] = (
+                None
+                if ground is None or scene is None
+                else view_trunk_foot(
+                    scene.cloud.points_m,
+                    ground,
+                    shortlists[index].plausible[color][0].fit.center_m,
+                    config.max_trunk_distance_m,
+                )
+            )
+        return feet[index, color]
+
+    added: list[list[BallCandidate]] = [[] for _ in views]
+    for target, (view, shortlist, ground) in enumerate(zip(views, shortlists, grounds, strict=True)):
+        for color in config.colors:
+            for anchor, anchor_list in enumerate(shortlists):
+                anchor_ground = grounds[anchor]
+                if (
+                    anchor == target
+                    or ground is None
+                    or anchor_ground is None
+                    or not anchor_list.plausible[color]
+                ):
+                    continue
+                for shared in config.colors:
+                    if (
+                        shared == color
+                        or not anchor_list.plausible[shared]
+                        or not shortlist.plausible[shared]
+                    ):
+                        continue
+                    there, here = foot(anchor, shared), foot(target, shared)
+                    if there is None or here is None:
+                        continue
+                    seen = anchor_list.plausible[shared][0].fit.center_m
+                    ball = shortlist.plausible[shared][0].fit.center_m
+                    reach_there = float(horizontal_distance(seen[None], there, anchor_ground.normal)[0])
+                    reach_here = float(horizontal_distance(ball[None], here, ground.normal)[0])
+                    if abs(reach_there - reach_here) > config.max_trunk_reach_mismatch_m:
+                        continue
+                    frame_there = _pair_frame(
+                        seen, _at_height_of(there, seen, anchor_ground), anchor_ground.normal
+                    )
+                    frame_here = _pair_frame(ball, _at_height_of(here, ball, ground), ground.normal)
+                    if frame_there is None or frame_here is None:
+                        continue
+                    wanted = anchor_list.plausible[color][0].fit.center_m
+                    estimate = ball + frame_here @ (frame_there.T @ (wanted - seen))
+                    if any(
+                        np.linalg.norm(c.fit.center_m - estimate) < config.radius_m
+                        for c in shortlist.plausible[color]
+                    ):
+                        continue
+                    found = view.sphere_near(estimate, color, config)
+                    if (
+                        found is not None
+                        and np.linalg.norm(found.fit.center_m - estimate) < _PLACEMENT_TOLERANCE_M
+                    ):
+                        shortlist.plausible[color].append(found)
+                        added[target].append(found)
+    return added
+
+
+def _at_height_of(foot: np.ndarray, point: np.ndarray, ground: GroundPlane) -> np.ndarray:
+    """The point of the vertical line through ``foot`` (on ``ground``) at ``point``'s height above it."""
+    normal = ground.normal / np.linalg.norm(ground.normal)
+    return foot + ((point - foot) @ normal) * normal
 
 
 def _likeliest_on_circles(

@@ -152,6 +152,14 @@ class BallConfig(BallSet):
         description="The crew lays the balls 0.3-0.8 m from the trunk; a ball found farther than this from "
         "the trunk is a look-alike (an apple lying on the ground) that every view saw and took for it.",
     )
+    max_trunk_reach_mismatch_m: float = Field(
+        0.05,
+        gt=0.0,
+        description="Where two views share only one ball, the trunk found in each fixes how the other balls "
+        "turn round it; the ball's horizontal distance from the trunk agrees between the two within this "
+        "(each view fits the trunk's circle on the arc it sees, a centimetre or two off), else they found "
+        "different trunks or posts and nothing is placed.",
+    )
     max_distance_mismatch_m: float = Field(
         0.02,
         gt=0.0,

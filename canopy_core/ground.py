@@ -26,6 +26,7 @@ __all__ = [
     "ground_height_map",
     "horizontal_distance",
     "view_ground_plane",
+    "view_trunk_foot",
 ]
 
 CAMERA_UP = np.array([0.0, -1.0, 0.0])
@@ -41,6 +42,8 @@ _TRUNK_RADIUS_RANGE_M = (0.02, 0.2)
 """Trunks of fruit trees, from a whip to an old tree."""
 _TRUNK_TOLERANCE_M = 0.01
 """Bark lies this close to the trunk's circle seen from above (depth noise, a slight lean over the slice)."""
+_TRUNK_MIN_POINTS = 20
+"""A trunk's slice (or the arc found in it) holds at least this many points."""
 _TRUNK_SCORED_POINTS = 4000
 """Each circle is scored on at most this many points of the slice, drawn at random."""
 _MAX_VIEW_TILT_DEG = 45.0
@@ -261,14 +264,48 @@ def _trunk_position(
     low, high = _TRUNK_SLICE_M
     in_slice = (world[:, 2] > low) & (world[:, 2] < high)
     in_slice &= np.linalg.norm(world[:, :2], axis=1) < _TRUNK_SEARCH_RADIUS_M
-    if np.count_nonzero(in_slice) < 20:
+    if np.count_nonzero(in_slice) < _TRUNK_MIN_POINTS:
         return np.zeros(2), 0
     xy = world[in_slice, :2]
+    found = _bark_circle(xy)
+    return found if found is not None else (np.median(xy, axis=0), int(xy.shape[0]))
+
+
+def view_trunk_foot(
+    points_m: np.ndarray, ground: GroundPlane, near_m: np.ndarray, reach_m: float
+) -> np.ndarray | None:
+    """Where the trunk's axis meets one view's ground plane, in its camera frame, before the views are
+    registered: the circle of a trunk's size in the view's low slice (``_TRUNK_SLICE_M`` above ``ground``)
+    within ``reach_m`` of ``near_m`` (a ball: the crew lays them round the trunk) that the most bark points
+    lie on with nothing inside (:func:`_bark_support`). One view sees an arc of the trunk, which fixes its
+    circle as well as a ring does. None when the slice holds too few points or no trunk-sized circle."""
+    up = ground.normal / np.linalg.norm(ground.normal)
+    height = (points_m - ground.point_m) @ up
+    low, high = _TRUNK_SLICE_M
+    in_slice = (height > low) & (height < high)
+    in_slice &= horizontal_distance(points_m, near_m, up) < reach_m
+    if np.count_nonzero(in_slice) < _TRUNK_MIN_POINTS:
+        return None
+    axis_u = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 1.0, 0.0])
+    axis_u /= np.linalg.norm(axis_u)
+    axis_v = np.cross(up, axis_u)
+    offset = points_m[in_slice] - ground.point_m
+    found = _bark_circle(np.column_stack([offset @ axis_u, offset @ axis_v]))
+    if found is None or found[1] < _TRUNK_MIN_POINTS:
+        return None
+    centre = found[0]
+    return ground.point_m + centre[0] * axis_u + centre[1] * axis_v
+
+
+def _bark_circle(xy: np.ndarray) -> tuple[np.ndarray, int] | None:
+    """The centre of the trunk-sized circle that the most of ``(N, 2)`` slice points lie on with nothing
+    inside it, refitted on its arc, and how many points lie on that arc; None when no three nearby points
+    make a circle of a trunk's size."""
     rng = np.random.default_rng(0)
     scored = xy[rng.permutation(xy.shape[0])[:_TRUNK_SCORED_POINTS]]
     centres, radii = _trunk_circles(scored, rng)
     if centres.shape[0] == 0:
-        return np.median(xy, axis=0), int(xy.shape[0])
+        return None
     best = int(
         np.argmax(
             [_bark_support(scored, centre, radius) for centre, radius in zip(centres, radii, strict=True)]
