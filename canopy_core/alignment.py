@@ -209,7 +209,10 @@ def balls_and_frame(
     lying on the ground agrees with itself across views; a fallen apple's centre lies lower than a ball's):
     the balls are chosen again without it, and without any other sphere that lies as far from the trunk
     (the same apple fitted twice, its neighbours in a heap), so the ball is sought where the others place
-    it.
+    it. The ball is named in the reference view's frame, but the look-alike may be another view's: when
+    each view took a look-alike for a different ball, each placed where the other's puts it, the triangles
+    agree and the reference's odd ball out is the other view's true one. So if choosing again without the
+    ball named fails, each other colour's choice is left out in turn.
 
     Raises
     ------
@@ -222,27 +225,29 @@ def balls_and_frame(
     misplaced = _misplaced_ball(balls_world, ground, config)
     if misplaced is None:
         return choices, view_to_reference, ground
-    color, failure = misplaced
+    named, failure = misplaced
     trunk_xy = np.array(ground.trunk_xy_m)
-    without = []
-    for view, choice, pose in zip(candidates, choices, view_to_reference, strict=True):
-        world_from_view = ground.world_from_reference @ pose
-        without.append(
-            replace(
-                view,
-                candidates=tuple(
-                    candidate
-                    for candidate in view.candidates
-                    if candidate is not choice.chosen[color]
-                    and _round_trunk(candidate, world_from_view, trunk_xy, config.balls.max_trunk_distance_m)
-                ),
+    for color in dict.fromkeys((named, *config.balls.colors)):
+        without = []
+        for view, choice, pose in zip(candidates, choices, view_to_reference, strict=True):
+            world_from_view = ground.world_from_reference @ pose
+            without.append(
+                replace(
+                    view,
+                    candidates=tuple(
+                        candidate
+                        for candidate in view.candidates
+                        if candidate is not choice.chosen[color]
+                        and _round_trunk(
+                            candidate, world_from_view, trunk_xy, config.balls.max_trunk_distance_m
+                        )
+                    ),
+                )
             )
-        )
-    try:
-        again = select_balls(without, config.balls, grounds=grounds)
-    except MeasurementError:
-        again = None
-    if again is not None:
+        try:
+            again = select_balls(without, config.balls, grounds=grounds)
+        except MeasurementError:
+            continue
         poses, frame, centres_world = _registered(again, clouds, config)
         if _misplaced_ball(centres_world, frame, config) is None:
             return again, poses, frame

@@ -136,11 +136,11 @@ def ball_off_ground(frame: GroundFrame, colors: Sequence[str], radius_m: float) 
     """The colour of the ball that lies off the ground round the balls, or None when they rest on it.
 
     The balls rest on the ground, so their centres' plane is the ground's, one radius up. When the ground
-    found round them tilts from that plane by more than a slope between the balls allows
-    (:attr:`GroundFrame.on_ground`), a sphere taken for a ball is not resting there: a fallen apple or a
-    fragment of one, whose centre stands lower than a ball's, tilts a plane through balls a few decimetres
-    apart by tens of degrees. The ball named is the one whose height above the ground found is farthest
-    from a ball's (``radius_m``).
+    found round them tilts from that plane by more than a slope between the balls allows and some ball's
+    centre does not stand one radius above the floor right round it (:attr:`GroundFrame.on_ground`), a
+    sphere taken for a ball is not resting there: a fallen apple or a fragment of one, whose centre stands
+    lower than a ball's, tilts a plane through balls a few decimetres apart by tens of degrees. The ball
+    named is the one whose height above its floor is farthest from a ball's (``radius_m``).
     """
     if frame.on_ground:
         return None
@@ -157,7 +157,8 @@ def balls_off_ground(
     return RegistrationFailed(
         f"the balls do not rest on the ground round them (their plane tilts "
         f"{frame.tilt_from_ball_plane_deg:.0f} degrees from it): the {off} ball's centre stands "
-        f"{height:.2f} m above it, where a ball's stands {radius_m:.2f} m. Something else of its colour (a "
+        f"{height:.2f} m above the floor round it, where a ball's stands {radius_m:.2f} m. Something else of "
+        "its colour (a "
         "fallen apple?) was probably taken for it, and no other sphere of its colour rests on the ground "
         "round the trunk",
         field="ground.max_tilt_from_balls_deg",

@@ -283,6 +283,14 @@ class GroundConfig(_Section):
         "fails naming it.",
     )
 
+    ball_rest_tolerance_m: float = Field(
+        0.03,
+        gt=0.0,
+        description="A ball's centre stands one radius above the floor right round it within this (grass, "
+        "the floor's texture): where the balls' plane tilts more than max_tilt_from_balls_deg from the "
+        "ground round them, they still rest on it when every ball does (one lies in a hollow 8 cm lower).",
+    )
+
 
 class IcpConfig(_Section):
     """ICP refinement after the ball registration (``refine.py``)."""

@@ -42,6 +42,8 @@ _TRUNK_RADIUS_RANGE_M = (0.02, 0.2)
 """Trunks of fruit trees, from a whip to an old tree."""
 _TRUNK_TOLERANCE_M = 0.01
 """Bark lies this close to the trunk's circle seen from above (depth noise, a slight lean over the slice)."""
+_FLOOR_RING_M = 0.25
+"""A ball's floor is read within this horizontal distance of its centre."""
 _TRUNK_MIN_POINTS = 20
 """A trunk's slice (or the arc found in it) holds at least this many points."""
 _TRUNK_SCORED_POINTS = 4000
@@ -69,11 +71,13 @@ class GroundFrame:
     ground plane was found there)."""
     on_ground: bool
     """Whether the balls rest on the ground found: its plane tilts less than ``max_tilt_from_balls_deg`` from
-    theirs, and the frame stands on it. Else the frame is the balls' plane, which a sphere taken for a ball
-    but lying off the ground tilts (see ``ball_heights_m``); True when no ground plane was found."""
+    theirs, or every ball stands one radius above the floor round it (``ball_rest_tolerance_m``); then the
+    frame stands on the ground. Else the frame is the balls' plane, which a sphere taken for a ball but lying
+    off the ground tilts (see ``ball_heights_m``); True when no ground plane was found."""
     ball_heights_m: tuple[float, ...]
-    """Each ball centre's height above the ground plane found round the balls, used or not (the balls'
-    radius each when none was found): a ball's stands one radius high."""
+    """Each ball centre's height above the floor right round it, along the ground's normal, the frame
+    standing on it or not (the balls' radius each when no ground was found): a ball's stands one radius
+    high."""
     trunk_xy_m: tuple[float, float]
     trunk_points: int
     ground_height_at_trunk_m: float
@@ -202,28 +206,37 @@ def fit_ground_frame(
     """
     centroid, ball_up = ball_plane(ball_centres_m, up_hint=up_hint)
     contact = centroid - ball_radius_m * ball_up
-    height = (points_m - contact) @ ball_up
     near_balls = np.zeros(points_m.shape[0], dtype=bool)
     for centre in ball_centres_m:
         near_balls |= np.linalg.norm(points_m - centre, axis=1) < 1.5 * ball_radius_m + 0.01
     candidates = np.flatnonzero(
-        (np.abs(height) < config.search_band_m)
+        (np.abs((points_m - contact) @ ball_up) < config.search_band_m)
         & (horizontal_distance(points_m, centroid, ball_up) < search_radius_m)
         & ~near_balls
     )
     up = ball_up
     ground = candidates
     tilt_deg, heights = 0.0, np.full(ball_centres_m.shape[0], ball_radius_m)
-    if candidates.size >= 50:
-        inliers = candidates[_ransac_ground(points_m[candidates], config.inlier_tolerance_m)]
-        if inliers.size >= 50:
-            plane_point, normal = _plane_fit(points_m[inliers])
-            normal = normal if normal @ ball_up > 0 else -normal
-            tilt_deg = float(np.degrees(np.arccos(np.clip(normal @ ball_up, -1, 1))))
-            heights = (ball_centres_m - plane_point) @ normal
-            if tilt_deg < config.max_tilt_from_balls_deg:
-                up, ground = normal, inliers
-                contact = centroid - ((centroid - plane_point) @ up) * up
+    on_ground = True
+    plane = _ground_round_balls(points_m, candidates, config)
+    if plane is not None:
+        plane_point, normal, inliers = plane
+        normal = normal if normal @ ball_up > 0 else -normal
+        tilt_deg = float(np.degrees(np.arccos(np.clip(normal @ ball_up, -1, 1))))
+        heights = _heights_above_floor(
+            points_m[~near_balls],
+            ball_centres_m,
+            (ball_centres_m - plane_point) @ normal,
+            normal,
+            ball_radius_m,
+            config,
+        )
+        on_ground = tilt_deg < config.max_tilt_from_balls_deg or bool(
+            np.all(np.abs(heights - ball_radius_m) < config.ball_rest_tolerance_m)
+        )
+        if on_ground:
+            up, ground = normal, inliers
+            contact = centroid - ((centroid - plane_point) @ up) * up
     rotation = _world_rotation(up, forward_hint)
     ground_world = (points_m[ground] - contact) @ rotation.T
     trunk_xy, trunk_points = _trunk_position(points_m, contact, rotation)
@@ -237,12 +250,50 @@ def fit_ground_frame(
         ground_points=int(ground.size),
         ground_rms_m=float(np.sqrt(np.mean(residual**2))),
         tilt_from_ball_plane_deg=tilt_deg,
-        on_ground=tilt_deg < config.max_tilt_from_balls_deg,
+        on_ground=on_ground,
         ball_heights_m=tuple(float(height) for height in heights),
         trunk_xy_m=(float(trunk_xy[0]), float(trunk_xy[1])),
         trunk_points=trunk_points,
         ground_height_at_trunk_m=float(ground_height),
     )
+
+
+def _heights_above_floor(
+    points_m: np.ndarray,
+    ball_centres_m: np.ndarray,
+    above_plane_m: np.ndarray,
+    up: np.ndarray,
+    ball_radius_m: float,
+    config: GroundConfig,
+) -> np.ndarray:
+    """Each ball centre's height above the floor right round it (along ``up``): the median height of the
+    points in a ring from just outside the ball to ``_FLOOR_RING_M`` from its centre, within the search
+    band of where the ball would touch the floor. The ball's own height above the floor it rests on, where
+    a plane through metres of undulating floor is centimetres off under one ball; its height above the
+    plane (``above_plane_m``) where the ring holds no point."""
+    heights = []
+    for centre, fallback in zip(ball_centres_m, above_plane_m, strict=True):
+        offset = points_m - centre
+        rise = offset @ up
+        across = np.linalg.norm(offset - np.outer(rise, up), axis=1)
+        ring = (across > 1.5 * ball_radius_m + 0.01) & (across < _FLOOR_RING_M)
+        ring &= np.abs(rise + ball_radius_m) < config.search_band_m
+        heights.append(-float(np.median(rise[ring])) if ring.any() else float(fallback))
+    return np.array(heights)
+
+
+def _ground_round_balls(
+    points_m: np.ndarray, candidates: np.ndarray, config: GroundConfig
+) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """The ground plane among the ``candidates`` round the balls (a point, its unit normal, the indices of
+    its inliers), or None when fewer than 50 points support one."""
+    if candidates.size < 50:
+        return None
+    inliers = candidates[_ransac_ground(points_m[candidates], config.inlier_tolerance_m)]
+    if inliers.size < 50:
+        return None
+    plane_point, normal = _plane_fit(points_m[inliers])
+    return plane_point, normal, inliers
 
 
 def _world_rotation(up: np.ndarray, forward_hint: np.ndarray) -> np.ndarray:

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from canopy_core.ball_selection import ball_off_ground
 from canopy_core.config import GroundConfig
-from canopy_core.ground import GroundFrame, fit_ground_frame
+from canopy_core.ground import GroundFrame, fit_ground_frame, view_ground_plane, view_trunk_foot
 from canopy_core.register import apply, invert
 
 
@@ -17,19 +19,26 @@ def _bumpy_ground(xy: np.ndarray) -> np.ndarray:
     return 0.03 * np.sin(3.1 * x + 0.4) * np.cos(2.3 * y) - 0.03 * np.sin(0.4) + 0.005 * x
 
 
-def _scene(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Ground, trunk and crown points in a world frame with the trunk at (0.2, -0.1), and ball centres."""
+def _scene(
+    rng: np.random.Generator,
+    *,
+    floor: Callable[[np.ndarray], np.ndarray] = _bumpy_ground,
+    ball_xy: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Ground, trunk and crown points in a world frame with the trunk at (0.2, -0.1), and ball centres
+    (at ``ball_xy``, else round the trunk) resting on the ``floor``."""
     ground_xy = rng.uniform(-2.5, 2.5, size=(40000, 2))
-    ground = np.column_stack([ground_xy, _bumpy_ground(ground_xy)])
+    ground = np.column_stack([ground_xy, floor(ground_xy)])
     trunk_xy = np.array([0.2, -0.1])
     angle = rng.uniform(0, 2 * np.pi, 3000)
     trunk = np.column_stack(
         [trunk_xy[0] + 0.07 * np.cos(angle), trunk_xy[1] + 0.07 * np.sin(angle), rng.uniform(0, 0.8, 3000)]
     )
     crown = rng.normal([0.2, -0.1, 1.8], [0.5, 0.5, 0.4], size=(20000, 3))
-    ball_xy = trunk_xy + 0.6 * np.column_stack([np.cos([0.3, 2.4, 4.4]), np.sin([0.3, 2.4, 4.4])])
-    balls = np.column_stack([ball_xy, _bumpy_ground(ball_xy) + 0.05])
-    ground_height_at_trunk = _bumpy_ground(trunk_xy[None, :])[0]
+    if ball_xy is None:
+        ball_xy = trunk_xy + 0.6 * np.column_stack([np.cos([0.3, 2.4, 4.4]), np.sin([0.3, 2.4, 4.4])])
+    balls = np.column_stack([ball_xy, floor(ball_xy) + 0.05])
+    ground_height_at_trunk = floor(trunk_xy[None, :])[0]
     ground[:, 2] -= ground_height_at_trunk
     balls[:, 2] -= ground_height_at_trunk
     return np.vstack([ground, trunk, crown]), balls, trunk_xy
@@ -94,12 +103,54 @@ def test_the_trunk_is_found_on_its_bark_among_tall_grass_and_weeds() -> None:
     assert np.linalg.norm(np.array(frame.trunk_xy_m) - trunk_foot[:2]) < 0.01
 
 
+def test_one_view_finds_its_trunk_on_the_arc_it_sees_before_any_registration() -> None:
+    """The trunk's foot in one camera's own frame, sought round one ball on that view's ground plane alone:
+    the arc of bark the camera sees fixes the circle, and the ground's bumps and a tall crown do not move
+    it. What places a ball two views do not share (the trunk fixes the turn about the shared ball)."""
+    points_world, balls_world, trunk_xy = _scene(np.random.default_rng(2))
+    front = points_world[:, 1] < trunk_xy[1] + 0.07 * np.sin(np.pi / 8)
+    on_trunk = np.abs(np.linalg.norm(points_world[:, :2] - trunk_xy, axis=1) - 0.07) < 1e-9
+    camera_from_world = _camera_from_world()
+    seen = apply(camera_from_world, points_world[~on_trunk | front])
+    ground = view_ground_plane(seen, up_hint=np.array([0.0, -1.0, 0.0]), tolerance_m=0.03)
+    assert ground is not None
+    ball = apply(camera_from_world, balls_world[:1])[0]
+    foot = view_trunk_foot(seen, ground, ball, reach_m=1.2)
+    assert foot is not None
+    actual = apply(camera_from_world, np.array([[trunk_xy[0], trunk_xy[1], 0.0]]))[0]
+    offset = foot - actual
+    horizontal = offset - (offset @ ground.normal) * ground.normal
+    assert np.linalg.norm(horizontal) < 0.015
+    assert view_trunk_foot(seen, ground, ball + 3.0 * np.array([1.0, 0.0, 0.0]), reach_m=1.2) is None
+
+
 def test_balls_resting_on_the_ground_stand_one_radius_above_the_ground_found() -> None:
     points_world, balls_world, _ = _scene(np.random.default_rng(0))
     frame, _ = _fitted_frame(points_world, balls_world)
     assert frame.on_ground
     assert np.allclose(frame.ball_heights_m, 0.05, atol=0.03)  # bumps of ~3 cm under a fitted plane
     assert ball_off_ground(frame, ("red", "yellow", "blue"), 0.05) is None
+
+
+def test_balls_on_an_uneven_floor_rest_on_it_though_their_plane_tilts_beyond_the_limit() -> None:
+    """As in mixed and green seed 2045008: the blue ball lies in a hollow 8-12 cm below the others, a third of
+    a metre from the line through them, so the balls' plane tilts more than 15 degrees from the ground round
+    them (the registration failed naming the red ball, or took an apple for it). Each ball still stands one
+    radius above the floor right round it (the ring round the blue ball climbs the hollow's side, 2 cm),
+    so they rest on the ground and the frame stands on it."""
+    trunk_xy = np.array([0.2, -0.1])
+    ball_xy = trunk_xy + np.array([[-0.45, -0.15], [-0.9, 0.45], [0.15, -0.45]])
+
+    def floor(xy: np.ndarray) -> np.ndarray:
+        return _bumpy_ground(xy) - 0.12 * np.exp(-((xy - ball_xy[2]) ** 2).sum(axis=1) / (2 * 0.3**2))
+
+    points_world, balls_world, _ = _scene(np.random.default_rng(3), floor=floor, ball_xy=ball_xy)
+    frame, recovered_from_world = _fitted_frame(points_world, balls_world)
+    assert frame.tilt_from_ball_plane_deg > 15.0
+    assert frame.on_ground
+    assert np.allclose(frame.ball_heights_m, 0.05, atol=0.02)
+    assert ball_off_ground(frame, ("red", "yellow", "blue"), 0.05) is None
+    assert np.degrees(np.arccos(recovered_from_world[2, 2])) < 3.0  # the frame stands on the floor
 
 
 def test_a_sphere_lying_lower_than_a_ball_tilts_the_balls_plane_and_is_named() -> None:
