@@ -41,7 +41,8 @@ log = logging.getLogger("canopy.service")
 @asynccontextmanager
 async def _lifespan(app: FastAPI) -> AsyncIterator[None]:
     """While the API runs: remove the temporary files of uploads that ended unfinished, at start-up and
-    every quarter of ``stale_upload_s`` after (see :meth:`BlobStore.remove_stale_incoming`)."""
+    every quarter of ``stale_upload_s`` after (see :meth:`BlobStore.remove_stale_incoming`); at shutdown,
+    those of the uploads the shutdown cancelled (:meth:`BlobStore.discard_arriving`)."""
     context: Context = app.state.context
     older_than_s = context.settings.stale_upload_s
 
@@ -57,6 +58,11 @@ async def _lifespan(app: FastAPI) -> AsyncIterator[None]:
         yield
     finally:
         sweeping.cancel()
+        discarded = context.store.discard_arriving()
+        if discarded:
+            log.warning(
+                "discarded %d upload(s) cancelled by the shutdown; their clients send them again", discarded
+            )
 
 
 def create_app(context: Context | None = None) -> FastAPI:

@@ -102,7 +102,13 @@ def _serve(context: Context, host: str, port: int) -> None:
     from service.http_protocol import ProblemH11Protocol
 
     uvicorn.run(
-        create_app(context), host=host, port=port, log_level="info", access_log=False, http=ProblemH11Protocol
+        create_app(context),
+        host=host,
+        port=port,
+        log_level="info",
+        access_log=False,
+        http=ProblemH11Protocol,
+        timeout_graceful_shutdown=context.settings.shutdown_grace_s,
     )
 
 

@@ -50,6 +50,14 @@ class Settings(BaseSettings):
         description="A request body of which no byte arrives for this long is given up (408): a client gone "
         "out of range mid-upload leaves its connection open, and would hold its upload slot.",
     )
+    shutdown_grace_s: int = Field(
+        10,
+        ge=0,
+        description="On SIGTERM or Ctrl-C the API stops taking connections and gives the requests under way "
+        "this long to finish, seconds; then it cancels them and exits. An upload cancelled so was never "
+        "acknowledged: its client sends it again. Without it, a client gone out of range mid-upload would "
+        "hold the shutdown for upload_idle_timeout_s.",
+    )
     max_concurrent_uploads: int = Field(
         16,
         gt=0,

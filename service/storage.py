@@ -73,6 +73,7 @@ class IncomingBlob:
         with store.full_disk_is_out_of_space():
             descriptor, name = tempfile.mkstemp(dir=store.root, prefix=_INCOMING_PREFIX)
         self.path = Path(name)
+        store.arriving.add(self.path)
         self._stream = os.fdopen(descriptor, "wb")
         self._hash = hashlib.sha256()
         self.size_bytes = 0
@@ -118,6 +119,7 @@ class IncomingBlob:
                 target.parent.mkdir(parents=True, exist_ok=True)
                 _fsync_directory(self._store.root)
             os.replace(self.path, target)
+            self._store.arriving.discard(self.path)
             _fsync_directory(target.parent)
         return sha256
 
@@ -131,6 +133,7 @@ class IncomingBlob:
             with contextlib.suppress(OSError):  # the buffer's rest could not be written: it is discarded
                 self._stream.close()
         self.path.unlink(missing_ok=True)
+        self._store.arriving.discard(self.path)
 
 
 class BlobStore:
@@ -143,6 +146,8 @@ class BlobStore:
     def __init__(self, root: Path, *, min_free_bytes: int = 0) -> None:
         self.root = root
         self.min_free_bytes = min_free_bytes
+        self.arriving: set[Path] = set()
+        """The temporary files of this process's blobs still arriving."""
 
     def path(self, sha256: str) -> Path:
         """Where the blob with this digest lives (whether or not it exists)."""
@@ -219,6 +224,18 @@ class BlobStore:
                 os.replace(doomed, target)
                 restored += 1
         return restored
+
+    def discard_arriving(self) -> int:
+        """Remove the temporary files of this process's uploads still arriving, how many: at shutdown, once
+        the requests under way were cancelled (their blocks never ran to the end that removes them). Other
+        processes' uploads into the same folder are left alone."""
+        removed = 0
+        for path in list(self.arriving):
+            with contextlib.suppress(FileNotFoundError):
+                path.unlink()
+                removed += 1
+            self.arriving.discard(path)
+        return removed
 
     def remove_stale_incoming(self, *, older_than_s: float) -> int:
         """Remove the temporary files of uploads that ended without finishing (a killed server, a dropped

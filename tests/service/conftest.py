@@ -28,7 +28,7 @@ def capture_copy(tree_capture: Path, tmp_path: Path) -> Path:
 @pytest.fixture
 def service(tmp_path: Path) -> Iterator[Service]:
     """A fresh `canopy serve` with its own SQLite file; start workers with ``service.start_worker()``."""
-    running = start_service(tmp_path, job_lease_s="3")
+    running = start_service(tmp_path, job_lease_s="3", shutdown_grace_s="2")
     yield running
     running.stop()
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import signal
 import socket
 import sqlite3
 import subprocess
@@ -105,6 +106,35 @@ def test_an_upload_that_stops_arriving_is_given_up_with_408_and_frees_its_slot(
     assert afterwards.status_code == 201, afterwards.text
     assert capture["files_received"] == ["views/1/depth.png"]
     assert not list((service.data_dir / "blobs").glob(".incoming-*"))
+
+
+def test_an_upload_stalled_at_shutdown_is_cancelled_after_the_grace_and_leaves_nothing_stored(
+    tmp_path: Path, tree_capture: Path
+) -> None:
+    """SIGTERM while a laptop gone out of range holds an upload open: the server gives it
+    ``shutdown_grace_s`` (1 s here) instead of the body's idle timeout (120 s here), then exits; the upload
+    was never acknowledged and leaves no file, blob or temporary file behind. Before, uvicorn waited for
+    every connection: the server stayed up until the idle timeout gave the upload up; and a cancelled
+    upload's temporary file stayed until the next start's sweep (its block never ran to its end)."""
+    service = start_service(tmp_path, upload_idle_timeout_s="120", shutdown_grace_s="1")
+    data = capture_files(tree_capture)["views/1/depth.png"]
+    try:
+        with service.client() as client:
+            capture_id = _create_capture(client, tree_capture)
+        blobs_before = sorted(path.name for path in (service.data_dir / "blobs").rglob("*") if path.is_file())
+        with _stalled_uploads(service, service.admin_key, capture_id, data, count=1):
+            service.server.send_signal(signal.SIGTERM)
+            exit_code = service.server.wait(timeout=60)  # far below the idle timeout
+    finally:
+        service.stop()
+    assert exit_code == -signal.SIGTERM  # uvicorn ends by the signal it caught, once shut down
+    with sqlite3.connect(service.data_dir / "canopy.db") as database:
+        assert database.execute("SELECT count(*) FROM capture_files").fetchone() == (0,)
+    blobs_after = sorted(path.name for path in (service.data_dir / "blobs").rglob("*") if path.is_file())
+    assert blobs_after == blobs_before and not any(name.startswith(".incoming-") for name in blobs_after)
+    log = (service.data_dir / "server.log").read_text()
+    assert "timeout graceful shutdown exceeded" in log and "Application shutdown complete" in log
+    assert "discarded 1 upload(s) cancelled by the shutdown" in log
 
 
 def test_uploads_beyond_a_keys_share_get_429_and_beyond_the_servers_get_503(
