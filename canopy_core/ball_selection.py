@@ -425,53 +425,59 @@ def _search_round_trunk(
 
     added: list[list[BallCandidate]] = [[] for _ in views]
     for target, (view, shortlist, ground) in enumerate(zip(views, shortlists, grounds, strict=True)):
-        for color in config.colors:
-            for anchor, anchor_list in enumerate(shortlists):
-                anchor_ground = grounds[anchor]
-                if (
-                    anchor == target
-                    or ground is None
-                    or anchor_ground is None
-                    or not anchor_list.plausible[color]
-                ):
-                    continue
-                for shared in config.colors:
-                    if (
-                        shared == color
-                        or not anchor_list.plausible[shared]
-                        or not shortlist.plausible[shared]
-                    ):
-                        continue
-                    there, here = foot(anchor, shared), foot(target, shared)
-                    if there is None or here is None:
-                        continue
-                    seen = anchor_list.plausible[shared][0].fit.center_m
-                    ball = shortlist.plausible[shared][0].fit.center_m
-                    reach_there = float(horizontal_distance(seen[None], there, anchor_ground.normal)[0])
-                    reach_here = float(horizontal_distance(ball[None], here, ground.normal)[0])
-                    if abs(reach_there - reach_here) > config.max_trunk_reach_mismatch_m:
-                        continue
-                    frame_there = _pair_frame(
-                        seen, _at_height_of(there, seen, anchor_ground), anchor_ground.normal
-                    )
-                    frame_here = _pair_frame(ball, _at_height_of(here, ball, ground), ground.normal)
-                    if frame_there is None or frame_here is None:
-                        continue
-                    wanted = anchor_list.plausible[color][0].fit.center_m
-                    estimate = ball + frame_here @ (frame_there.T @ (wanted - seen))
-                    if any(
-                        np.linalg.norm(c.fit.center_m - estimate) < config.radius_m
-                        for c in shortlist.plausible[color]
-                    ):
-                        continue
-                    found = view.sphere_near(estimate, color, config)
-                    if (
-                        found is not None
-                        and np.linalg.norm(found.fit.center_m - estimate) < _PLACEMENT_TOLERANCE_M
-                    ):
-                        shortlist.plausible[color].append(found)
-                        added[target].append(found)
+        for color, anchor, shared in itertools.product(config.colors, range(len(views)), config.colors):
+            anchor_ground = grounds[anchor]
+            if (
+                anchor == target
+                or color == shared
+                or ground is None
+                or anchor_ground is None
+                or not shortlists[anchor].plausible[color]
+                or not shortlists[anchor].plausible[shared]
+                or not shortlist.plausible[shared]
+            ):
+                continue
+            there, here = foot(anchor, shared), foot(target, shared)
+            if there is None or here is None:
+                continue
+            estimate = _carried_round_trunk(
+                shortlists[anchor].plausible[color][0].fit.center_m,
+                (shortlists[anchor].plausible[shared][0].fit.center_m, there, anchor_ground),
+                (shortlist.plausible[shared][0].fit.center_m, here, ground),
+                config,
+            )
+            if estimate is None or any(
+                np.linalg.norm(c.fit.center_m - estimate) < config.radius_m
+                for c in shortlist.plausible[color]
+            ):
+                continue
+            found = view.sphere_near(estimate, color, config)
+            if found is not None and np.linalg.norm(found.fit.center_m - estimate) < _PLACEMENT_TOLERANCE_M:
+                shortlist.plausible[color].append(found)
+                added[target].append(found)
     return added
+
+
+def _carried_round_trunk(
+    wanted: np.ndarray,
+    there: tuple[np.ndarray, np.ndarray, GroundPlane],
+    here: tuple[np.ndarray, np.ndarray, GroundPlane],
+    config: BallConfig,
+) -> np.ndarray | None:
+    """Where ``wanted`` (a ball's centre in another view) lies in this view, carried by the rigid motion that
+    lays the shared ball, the ground's up and the trunk of ``there`` (the shared ball's centre, the trunk's
+    foot and the ground plane, in the other view) on those of ``here``; None when the shared ball's
+    distance from the trunk differs between the views by more than ``max_trunk_reach_mismatch_m``."""
+    (seen, foot_there, ground_there), (ball, foot_here, ground_here) = there, here
+    reach_there = float(horizontal_distance(seen[None], foot_there, ground_there.normal)[0])
+    reach_here = float(horizontal_distance(ball[None], foot_here, ground_here.normal)[0])
+    if abs(reach_there - reach_here) > config.max_trunk_reach_mismatch_m:
+        return None
+    frame_there = _pair_frame(seen, _at_height_of(foot_there, seen, ground_there), ground_there.normal)
+    frame_here = _pair_frame(ball, _at_height_of(foot_here, ball, ground_here), ground_here.normal)
+    if frame_there is None or frame_here is None:
+        return None
+    return ball + frame_here @ (frame_there.T @ (wanted - seen))
 
 
 def _at_height_of(foot: np.ndarray, point: np.ndarray, ground: GroundPlane) -> np.ndarray:
