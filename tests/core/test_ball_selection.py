@@ -6,9 +6,10 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from canopy_core.backproject import ViewCloud
-from canopy_core.ball_selection import check_ball_spacing, choose_in_view, select_balls
+from canopy_core.ball_selection import _carried_round_trunk, check_ball_spacing, choose_in_view, select_balls
 from canopy_core.balls import BallCandidate, ViewBallCandidates, find_ball_candidates
 from canopy_core.config import BallConfig
 from canopy_core.errors import BallNotFound, RegistrationFailed
@@ -313,3 +314,32 @@ def test_a_look_alike_where_the_ball_would_lie_mirrored_is_not_taken_for_it() ->
     chosen = select_balls(views, BallConfig(), grounds=[None, None])
 
     assert np.allclose(chosen[1].chosen["blue"].fit.center_m, second["blue"])
+
+
+def test_a_ball_is_carried_round_the_trunk_by_the_shared_ball_the_ground_and_the_trunk() -> None:
+    """Two views of one layout, related by a turn about every axis and a shift: the red ball, the ground's up
+    and the trunk's foot, each in its own view's frame, carry views/1's yellow ball exactly onto where
+    views/2 sees it; a trunk found at another distance from the red ball (another trunk, a post) places
+    nothing."""
+    red, yellow, foot = np.array([0.4, 0.05, 0.1]), np.array([-0.3, 0.05, 0.5]), np.array([0.0, 0.0, 0.0])
+    up = np.array([0.0, 1.0, 0.0])
+    turn = Rotation.from_euler("xyz", [8.0, 140.0, -5.0], degrees=True).as_matrix()
+    shift = np.array([0.3, -1.1, 3.4])
+
+    def moved(point: np.ndarray) -> np.ndarray:
+        return turn @ point + shift
+
+    ground_there = GroundPlane(point_m=foot, normal=up)
+    ground_here = GroundPlane(point_m=moved(foot), normal=turn @ up)
+    carried = _carried_round_trunk(
+        yellow, (red, foot, ground_there), (moved(red), moved(foot), ground_here), BallConfig()
+    )
+    assert carried is not None
+    assert np.linalg.norm(carried - moved(yellow)) < 1e-9
+    elsewhere = moved(foot + np.array([0.3, 0.0, -0.2]))  # 10 cm nearer the red ball than the trunk
+    assert (
+        _carried_round_trunk(
+            yellow, (red, foot, ground_there), (moved(red), elsewhere, ground_here), BallConfig()
+        )
+        is None
+    )
