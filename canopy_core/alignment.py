@@ -116,16 +116,20 @@ def _within_refinement_bounds(alignment: Alignment, config: IcpConfig) -> bool:
     is one hypothesis among several, so it must meet that, not merely stay short of a certain failure
     (:func:`check_icp_agreement`'s looser bounds): look-alikes both views see agree with each other and
     close triangles that ICP turns by 4-5 degrees."""
-    loose_reference = bool(alignment.choices[0].found_by_position)
+    loose_reference = _loose(alignment.choices[0])
     for choice, report in zip(alignment.choices, alignment.icp, strict=True):
         if report is None:
             continue
-        shift_m, turn_deg = refinement_bounds(
-            config, found_by_position=loose_reference or bool(choice.found_by_position)
-        )
+        shift_m, turn_deg = refinement_bounds(config, found_by_position=loose_reference or _loose(choice))
         if report.ball_shift_m > shift_m or report.rotation_change_deg > turn_deg:
             return False
     return True
+
+
+def _loose(choice: BallChoice) -> bool:
+    """Whether a view's pose rests on a ball known to centimetres only: a fragment found where the other
+    views place it, or a ball placed there unseen."""
+    return bool(choice.found_by_position or choice.placed_unseen)
 
 
 def _reports(alignment: Alignment) -> list[IcpRefinement]:
@@ -162,6 +166,11 @@ def _aligned(
     choices, view_to_reference, ground = balls_and_frame(clouds, candidates, grounds, config)
     colors = config.balls.colors
     centres = [np.array([choice.chosen[color].fit.center_m for color in colors]) for choice in choices]
+    # A ball placed unseen holds no view to the others in ICP (it stands where they put it): NaN.
+    anchors = [
+        np.where(np.array([[color in choice.placed_unseen] for color in colors]), np.nan, view_centres)
+        for choice, view_centres in zip(choices, centres, strict=True)
+    ]
     world_from_view = [ground.world_from_reference @ pose for pose in view_to_reference]
     roi = [
         _roi_cloud(cloud, pose, focal, config)
@@ -175,8 +184,8 @@ def _aligned(
         corrections, reports = refine_views(
             list(view_names),
             [points[points[:, 2] < config.icp.max_height_m] for points in roi_points],
-            view_anchors_m=[apply(pose, c) for pose, c in zip(world_from_view, centres, strict=True)],
-            found_by_position=[bool(choice.found_by_position) for choice in choices],
+            view_anchors_m=[apply(pose, a) for pose, a in zip(world_from_view, anchors, strict=True)],
+            found_by_position=[_loose(choice) for choice in choices],
             config=config.icp,
         )
         roi_points = [apply(c, p) for c, p in zip(corrections, roi_points, strict=True)]

@@ -62,7 +62,8 @@ class BallReport:
         """The document of ``canopy balls --json``.
 
         ``views`` maps each view and colour to the chosen sphere's ``center_m``, ``radius_m``, ``points``
-        and ``rms_m`` (and ``found_by_position`` when the other views placed it), or, without one, to
+        and ``rms_m`` (and ``found_by_position`` when found where the other views place it, or
+        ``placed_unseen`` when the view does not show it and it stands where they put it), or, without one, to
         ``problem`` and ``code``; and to ``rejected``: at most ``limit`` (None: all) spheres, likeliest
         first, each with ``center_m``, ``radius_m``, ``points``, ``reason`` and ``code``. ``error``
         (:meth:`~canopy_core.errors.CanopyError.to_dict`) is there when selection failed.
@@ -76,6 +77,8 @@ class BallReport:
                     entry: dict[str, Any] = chosen.fit.to_dict()
                     if color in choice.found_by_position:
                         entry["found_by_position"] = True
+                    if color in choice.placed_unseen:
+                        entry["placed_unseen"] = True
                 else:
                     entry = {"problem": choice.missing[color].message, "code": choice.missing[color].code}
                 entry["rejected"] = [
@@ -107,6 +110,8 @@ class BallReport:
                     placed = (
                         "  (found where the other views place it)"
                         if color in choice.found_by_position
+                        else "  (not seen in this view: placed where the other views put it)"
+                        if color in choice.placed_unseen
                         else ""
                     )
                     lines.append(
@@ -222,7 +227,8 @@ def draw_ball_preview(
     -------
     numpy.ndarray
         ``(H, W, 3)`` uint8 RGB image: each chosen ball as a thick circle in its colour round its
-        projected outline, labelled with its colour and range ("yellow 3.2 m"); each rejected sphere, once,
+        projected outline, labelled with its colour and range ("yellow 3.2 m"; "blue 3.4 m, placed unseen"
+        for a ball the view does not show, placed where the other views put it); each rejected sphere, once,
         as a thin light grey circle labelled with its objection's code for its likeliest colour; and
         in the top left corner, "no blue ball" for each colour of ``config`` without a chosen ball.
     """
@@ -244,7 +250,7 @@ def draw_ball_preview(
     for candidate, code, _ in shown.values():
         _draw(image, view.camera, candidate, scale, _REJECTED_RGB, code, thickness=1)
     for color, candidate in choice.chosen.items():
-        label = f"{color} {candidate.range_m:.1f} m"
+        label = f"{color} {candidate.range_m:.1f} m" + (", placed unseen" if candidate.unseen else "")
         _draw(image, view.camera, candidate, scale, ball_rgb(color, config), label, thickness=3)
     missing = [color for color in config.colors if color not in choice.chosen]
     for row, color in enumerate(missing, start=1):

@@ -45,6 +45,9 @@ _CIRCLE_SLACK_M = 0.02
 """A circle's point is also tried this far out, in, up and down."""
 _CIRCLE_TRIES = 6
 """Most places along a view's circles for one ball where a sphere is fitted (the best supported)."""
+_CARRY_SD_M = 0.01
+"""A ball carried onto this view by a pair of balls and the ground's up lands within about this of where it
+lies: the views' ground normals agree within a degree, and the balls lie 0.6-1.2 m apart."""
 _PLACEMENT_TOLERANCE_M = 0.05
 """A sphere found this close to where the other views place a ball is that ball: the placement errs by the
 ground's unevenness under the balls and the plane's error, a few centimetres."""
@@ -74,6 +77,8 @@ class BallChoice:
     rejected: dict[str, list[Rejection]]
     found_by_position: tuple[str, ...] = ()
     """Colours whose ball was found where the other views placed it, not by its own colour's votes."""
+    placed_unseen: tuple[str, ...] = ()
+    """Colours whose ball this view does not show at all: placed where the other views put it."""
     missing: dict[str, Objection] = field(default_factory=dict)
 
 
@@ -259,8 +264,9 @@ def select_balls(
     # agrees already: a look-alike that both views see (an apple lying on the ground) agrees too, and must
     # compete with a ball one view sees whole and another only in part. Only if no combination agrees then,
     # each ball is sought at the distance another view puts it from a ball this view has (which may
-    # complete a triangle that places the rest), even where look-alikes of its colour were found; and only
-    # if that fails too, where the trunk and the one ball two views share place it.
+    # complete a triangle that places the rest), even where look-alikes of its colour were found; if that
+    # fails too, where the trunk and the one ball two views share place it; and last, a ball a view does
+    # not show at all is placed, unseen, where two balls it shows and another view's triangle put it.
     searches = (
         (
             _search_where_placed,
@@ -268,6 +274,7 @@ def select_balls(
             _search_where_placed,
             _search_round_trunk,
             _search_where_placed,
+            _place_hidden,
         )
         if len(views) > 1 and len(config.colors) >= 3
         else ()
@@ -325,7 +332,7 @@ def _search_where_placed(
         others = [(triangle, anchor_ground) for a, triangle, anchor_ground in anchors if a != target]
         for missing, color in enumerate(config.colors):
             known = shortlist.plausible[color]
-            for estimate in _placements(shortlist, ground, others, missing, config):
+            for estimate, _ in _placements(shortlist, ground, others, missing, config):
                 if any(np.linalg.norm(c.fit.center_m - estimate) < config.radius_m for c in known):
                     continue
                 found = view.sphere_near(estimate, color, config)
@@ -458,6 +465,52 @@ def _search_round_trunk(
     return added
 
 
+def _place_hidden(
+    views: Sequence[ViewBallCandidates],
+    shortlists: list[_Shortlist],
+    per_view: list[list[tuple[float, tuple[BallCandidate, ...]]]],
+    grounds: Sequence[GroundPlane | None],
+    config: BallConfig,
+) -> list[list[BallCandidate]]:
+    """Place each of a view's balls that no search found where the other views' triangles, carried onto a
+    pair of this view's spheres and its ground's up (:func:`_placements`), put it, as a ball the view does
+    not show (:meth:`ViewBallCandidates.hidden_ball_at`: the view must not see through that place).
+
+    For a ball hidden behind the trunk or weeds, or lying outside the image, in one view: two balls and the
+    ground fix the view's pose (two points and a direction fix a rigid motion), so the ball need not be
+    seen. A placed ball scores nothing, so it completes a triangle only where no sphere does; it is no
+    anchor for ICP, which then checks the pose against the surfaces, and no chosen pair of triangles may
+    rest on fewer than two balls both views show (:func:`_consistent_choice`). At most
+    ``_CANDIDATES_PER_COLOR`` places per view and colour, the likeliest anchors' first. Returns, per view,
+    the balls placed."""
+    anchors = [(a, triangle, grounds[a]) for a, triangles in enumerate(per_view) for _, triangle in triangles]
+    anchors = [
+        (a, triangle, ground) for a, triangle, ground in anchors if not any(c.unseen for c in triangle)
+    ]
+    wanted: list[list[tuple[str, np.ndarray, np.ndarray]]] = [[] for _ in views]
+    for target, (shortlist, ground) in enumerate(zip(shortlists, grounds, strict=True)):
+        if ground is None:
+            continue
+        others = [(triangle, anchor_ground) for a, triangle, anchor_ground in anchors if a != target]
+        for missing, color in enumerate(config.colors):
+            for estimate, carried in _placements(shortlist, ground, others, missing, config):
+                spread = float(np.trace(carried.fit.center_covariance_m2)) / 3 + _CARRY_SD_M**2
+                wanted[target].append((color, estimate, spread * np.eye(3)))
+    added: list[list[BallCandidate]] = [[] for _ in views]
+    for target, (view, shortlist, ground) in enumerate(zip(views, shortlists, grounds, strict=True)):
+        for color, estimate, covariance in wanted[target]:
+            known = shortlist.plausible[color]
+            if sum(c.unseen for c in known) >= _CANDIDATES_PER_COLOR or any(
+                np.linalg.norm(c.fit.center_m - estimate) < config.radius_m for c in known
+            ):
+                continue
+            placed = view.hidden_ball_at(estimate, covariance, config)
+            if placed is not None and _floating(placed, ground, config) is None:
+                known.append(placed)
+                added[target].append(placed)
+    return added
+
+
 def _carried_round_trunk(
     wanted: np.ndarray,
     there: tuple[np.ndarray, np.ndarray, GroundPlane],
@@ -580,9 +633,10 @@ def _placements(
     anchors: list[tuple[tuple[BallCandidate, ...], GroundPlane | None]],
     missing: int,
     config: BallConfig,
-) -> list[np.ndarray]:
+) -> list[tuple[np.ndarray, BallCandidate]]:
     """Where the other views place one view's ball of colour index ``missing``: one point per anchor and
-    pair of this view's spheres for the other two colours that stand at the anchor's distance apart.
+    pair of this view's spheres for the other two colours that stand at the anchor's distance apart, each
+    with the anchor's ball carried there.
 
     The balls do not move: a triangle found whole in another view (an anchor) is carried onto the pair by
     the rigid motion that lays its two balls on the pair's and its ground's up on this view's (two points
@@ -610,7 +664,7 @@ def _placements(
                 continue
             here = _pair_frame(a, b, up)
             if here is not None:
-                placed.append((a + b) / 2 + here @ in_pair_frame)
+                placed.append(((a + b) / 2 + here @ in_pair_frame, triangle[missing]))
     return placed
 
 
@@ -724,8 +778,10 @@ def _consistent_choice(
     per_view: list[list[tuple[float, tuple[BallCandidate, ...]]]], ups: list[np.ndarray], config: BallConfig
 ) -> list[tuple[BallCandidate, ...]] | None:
     """The combination per view, one for every view, whose distances agree with the first view's, that
-    turns the same way seen from above (``ups``: each view's up, its ground's normal), and whose total
-    score is highest; None when there is none.
+    turns the same way seen from above (``ups``: each view's up, its ground's normal), that shares at least
+    two balls both views show with it (a ball placed unseen in one view and another in the other would
+    leave one shared ball and the views' turn about it open), and whose total score is highest; None when
+    there is none.
 
     Distances alone allow a mirror image: a look-alike where the ball would lie mirrored across the line
     through the other two (where the circles round the other two meet a second time) makes a
@@ -741,6 +797,7 @@ def _consistent_choice(
                     for score, triangle in triangles
                     if _mismatch(triangle, reference, config) <= config.max_distance_mismatch_m
                     and _turn(triangle, up) == turn
+                    and _seen_in_both(triangle, reference) >= 2
                 ),
                 None,
             )
@@ -769,14 +826,29 @@ def _describe(
     for color in config.colors:
         others = []
         for candidate in shortlist.plausible[color]:
-            if candidate is chosen.get(color):
-                continue
+            if candidate is chosen.get(color) or candidate.unseen:
+                continue  # a ball placed but not chosen was never seen: nothing to reject
             taken_as = next((c for c, other in chosen.items() if other is candidate), None)
             objection = Objection("taken", f"taken for the {taken_as} ball") if taken_as else alternative
             others.append(Rejection(candidate, objection))
         rejected[color] = others + shortlist.refused[color]
-    by_position = tuple(color for color, candidate in chosen.items() if any(candidate is r for r in rescued))
-    return BallChoice(view=view.view, chosen=chosen, rejected=rejected, found_by_position=by_position)
+    by_position = tuple(
+        color
+        for color, candidate in chosen.items()
+        if not candidate.unseen and any(candidate is r for r in rescued)
+    )
+    return BallChoice(
+        view=view.view,
+        chosen=chosen,
+        rejected=rejected,
+        found_by_position=by_position,
+        placed_unseen=tuple(color for color, candidate in chosen.items() if candidate.unseen),
+    )
+
+
+def _seen_in_both(triangle: tuple[BallCandidate, ...], reference: tuple[BallCandidate, ...]) -> int:
+    """How many of the balls both combinations hold are seen in both views (not placed unseen)."""
+    return sum(not (here.unseen or there.unseen) for here, there in zip(triangle, reference, strict=True))
 
 
 def _disagreement(centres: np.ndarray, reference: np.ndarray) -> np.ndarray:

@@ -141,12 +141,16 @@ class BallCandidate:
         deep shade is still of its colour.
     problem
         Why the sphere's geometry is not a ball's (too few points, radius, residual, coverage), or None.
+    unseen
+        True for a ball this view does not show, placed where the other views put it
+        (:meth:`ViewBallCandidates.hidden_ball_at`): its fit has no point, and its score is 0.
     """
 
     fit: SphereFit
     expected_points: float
     color_scores: dict[str, float]
     problem: Objection | None = None
+    unseen: bool = False
 
     @property
     def completeness(self) -> float:
@@ -238,6 +242,51 @@ class ViewBallCandidates:
                     return None
                 return candidate
         return None
+
+    def hidden_ball_at(
+        self, centre_m: np.ndarray, covariance_m2: np.ndarray, config: BallConfig
+    ) -> BallCandidate | None:
+        """A ball this view does not show, placed at ``centre_m`` (known to ``covariance_m2``), if the view
+        lets one hide there; None when it sees through that place.
+
+        Nothing is fitted: the other views' triangle carried onto two balls this one shows put it there. A
+        ball there would end every ray through its outline on its surface or behind something in front of
+        it (grass, the trunk, another ball). So the rays through the inner half of its outline, where a
+        centimetre or two of placement error still falls on the ball, are followed: when more than
+        ``config.max_seen_through_share`` of them reach a surface behind its near side, the place is open
+        and no ball lies there. A place outside the image, or without depth readings, hides a ball.
+        """
+        if self.scene is None:
+            return None
+        radius = config.radius_m
+        rays = self.scene.window(centre_m, radius, radii=0.5)
+        if any(np.linalg.norm(centre_m - c) < radius for c in self.ruled_out_m):
+            return None
+        if rays.size:
+            points = self.scene.cloud.points_m[rays]
+            ranges = np.linalg.norm(points, axis=1)
+            directions = points / ranges[:, None]
+            along = directions @ centre_m
+            miss_sq = np.maximum(centre_m @ centre_m - along**2, 0.0)
+            entry = along - np.sqrt(np.maximum(radius**2 - miss_sq, 0.0))
+            tolerance = _range_tolerance(config.inlier_tolerance_m, centre_m)
+            if np.mean(ranges > entry + tolerance) > config.max_seen_through_share:
+                return None
+        fit = SphereFit(
+            center_m=np.asarray(centre_m, dtype=float),
+            radius_m=radius,
+            points=0,
+            rms_m=0.0,
+            coverage=0.0,
+            radius_sd_m=float("inf"),
+            center_covariance_m2=np.asarray(covariance_m2, dtype=float),
+        )
+        return BallCandidate(
+            fit=fit,
+            expected_points=self.scene.pixels_of_ball(centre_m, radius),
+            color_scores=dict.fromkeys(config.colors, 0.0),
+            unseen=True,
+        )
 
     def surface_support(
         self,

@@ -132,6 +132,15 @@ class BallConfig(BallSet):
         description="As min_completeness, for a sphere found where the other views place a ball (grass "
         "hiding most of it): that the balls' triangle puts it there is evidence a fragment lacks.",
     )
+    max_seen_through_share: float = Field(
+        0.25,
+        gt=0.0,
+        lt=1.0,
+        description="A ball a view does not show at all may be placed where two balls it does show and the "
+        "other views' triangle put it, if it is hidden there: the rays through the inner half of its outline "
+        "end on it or in front of it (grass, the trunk). When more than this share of them pass behind "
+        "where it would be, the view sees through that place and no ball lies there.",
+    )
     min_coverage: float = Field(
         0.6,
         gt=0.0,

@@ -77,7 +77,9 @@ class ViewDiagnostics:
 
     ``unreliable_pixels_removed`` counts depth readings out of range or flying; ``sparse_points_removed``
     the points inside the region of interest dropped as strays; ``balls_found_by_position`` the colours
-    whose ball was found where the other views placed it, having shown too little of its colour.
+    whose ball was found where the other views placed it, having shown too little of its colour;
+    ``balls_placed_unseen`` those whose ball the view does not show at all, placed there (its ``balls``
+    entry has no point).
     """
 
     view: str
@@ -88,6 +90,7 @@ class ViewDiagnostics:
     tree_points: int
     balls: dict[str, SphereFit]
     balls_found_by_position: tuple[str, ...]
+    balls_placed_unseen: tuple[str, ...]
     ball_residual_m: float
     world_from_view: np.ndarray
     icp: IcpRefinement | None
@@ -102,6 +105,7 @@ class ViewDiagnostics:
             "tree_points": self.tree_points,
             "balls": {color: fit.to_dict() for color, fit in self.balls.items()},
             "balls_found_by_position": list(self.balls_found_by_position),
+            "balls_placed_unseen": list(self.balls_placed_unseen),
             "ball_residual_m": self.ball_residual_m,
             "world_from_view": self.world_from_view.round(6).tolist(),
             "icp": self.icp.to_dict() if self.icp else None,
@@ -294,6 +298,7 @@ def measure(
             tree_points=int(np.count_nonzero(tree_masks[i])),
             balls=balls[i],
             balls_found_by_position=choices[i].found_by_position,
+            balls_placed_unseen=choices[i].placed_unseen,
             ball_residual_m=_ball_residual(aligned.view_to_reference[i], centres[i], centres[0]),
             world_from_view=world_from_view[i],
             icp=aligned.icp[i],

@@ -191,12 +191,14 @@ def refine_views(
     view_anchors_m
         Each view's own ball centres mapped into the common frame by its ball pose (matching rows). ICP
         holds them to the reference's, and a refinement may not move them farther than
-        ``config.max_ball_shift_m``: the balls registered each view to within a few millimetres.
+        ``config.max_ball_shift_m``: the balls registered each view to within a few millimetres. A row of
+        NaN (a ball placed where the others put it, not seen in that view or the reference) holds nothing.
     found_by_position
         Per view, whether one of its balls was found where the other views place it (a fragment of the
-        ball, fitted to a few centimetres). A view with one, and every view when the reference has one, may
-        move and turn as far as ``config.max_ball_shift_found_by_position_m`` and
-        ``config.max_rotation_found_by_position_deg``. None: no view has one.
+        ball, fitted to a few centimetres, or a ball placed there unseen). A view with one, and every view
+        when the reference has one, may move and turn as far as
+        ``config.max_ball_shift_found_by_position_m`` and ``config.max_rotation_found_by_position_deg``.
+        None: no view has one.
     config
         ICP settings and the acceptance bounds.
 
@@ -216,12 +218,14 @@ def refine_views(
         others = [j for j in range(len(thinned)) if j != index]
         others_tree = cKDTree(np.concatenate([apply(corrections[j], thinned[j][0]) for j in others]))
         target_normals = np.concatenate([thinned[j][1] @ corrections[j][:3, :3].T for j in others])
+        held = np.isfinite(view_anchors_m[index]).all(axis=1) & np.isfinite(view_anchors_m[0]).all(axis=1)
+        anchors = view_anchors_m[index][held]
         correction = anchored_icp(
             points,
             others_tree,
             target_normals,
-            view_anchors_m[index],
-            view_anchors_m[0],
+            anchors,
+            view_anchors_m[0][held],
             max_correspondence_m=config.max_correspondence_m,
             iterations=config.max_iterations,
         )
@@ -230,7 +234,6 @@ def refine_views(
             apply(correction, points), others_tree, max_distance_m=config.max_correspondence_m
         )
         translation, rotation = pose_change(np.eye(4), correction)
-        anchors = view_anchors_m[index]
         ball_shift = float(np.linalg.norm(apply(correction, anchors) - anchors, axis=1).max())
         loose = found_by_position is not None and (found_by_position[index] or found_by_position[0])
         max_shift, max_turn = refinement_bounds(config, found_by_position=loose)

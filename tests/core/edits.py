@@ -11,18 +11,32 @@ from PIL import Image
 
 
 def take_away_blue_ball(capture: Path, view: str) -> None:
-    """Remove the blue ball from a view, as if a foot had kicked it away: the pixels around it lose their
-    depth, and every blue pixel is painted grey."""
+    """Remove the blue ball from a view, as if a foot had kicked it away: through the disc round where it
+    lay the camera sees the ground behind it (the level plane under the ball), and every blue pixel is
+    painted grey."""
     truth = json.loads((capture / "ground_truth.json").read_text())
     camera = json.loads((capture / view / "camera.json").read_text())
-    world = np.append(truth["balls"]["blue"]["center_m"], 1.0)
-    x, y, z = (np.linalg.inv(np.array(truth["views"][view]["camera_to_world"])) @ world)[:3]
+    centre_world = np.array(truth["balls"]["blue"]["center_m"])
+    camera_to_world = np.array(truth["views"][view]["camera_to_world"])
+    x, y, z = (np.linalg.inv(camera_to_world) @ np.append(centre_world, 1.0))[:3]
     depth_file = capture / view / "depth.png"
     depth = np.asarray(Image.open(depth_file)).copy()
     intrinsics = camera["depth_intrinsics"]
     rows, cols = np.mgrid[: depth.shape[0], : depth.shape[1]]
     u, v = intrinsics["fx"] * x / z + intrinsics["cx"], intrinsics["fy"] * y / z + intrinsics["cy"]
-    depth[(cols - u) ** 2 + (rows - v) ** 2 <= (2.0 * intrinsics["fx"] * 0.05 / z) ** 2] = 0
+    disc = (cols - u) ** 2 + (rows - v) ** 2 <= (2.0 * intrinsics["fx"] * 0.05 / z) ** 2
+    # Each pixel's ray (camera frame, unit depth) meets the plane z = centre - radius (world) at depth t.
+    rays = np.stack(
+        [
+            (cols[disc] - intrinsics["cx"]) / intrinsics["fx"],
+            (rows[disc] - intrinsics["cy"]) / intrinsics["fy"],
+        ]
+    )
+    rays = np.vstack([rays, np.ones(rays.shape[1])])
+    world_rays = camera_to_world[:3, :3] @ rays
+    floor_z = centre_world[2] - truth["balls"]["blue"]["diameter_m"] / 2
+    t = (floor_z - camera_to_world[2, 3]) / world_rays[2]
+    depth[disc] = np.where(t > 0, np.rint(t * camera["depth_scale"]), 0).astype(depth.dtype)
     Image.fromarray(depth).save(depth_file)
     paint_blue_grey(capture, view)
 

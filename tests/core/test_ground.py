@@ -7,7 +7,7 @@ from collections.abc import Callable
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from canopy_core.ball_selection import ball_off_ground
+from canopy_core.ball_selection import ball_off_ground, balls_off_ground
 from canopy_core.config import GroundConfig
 from canopy_core.ground import GroundFrame, fit_ground_frame, view_ground_plane, view_trunk_foot
 from canopy_core.register import apply, invert
@@ -163,3 +163,6 @@ def test_a_sphere_lying_lower_than_a_ball_tilts_the_balls_plane_and_is_named() -
     assert frame.tilt_from_ball_plane_deg > 15.0
     assert ball_off_ground(frame, ("red", "yellow", "blue"), 0.05) == "blue"
     assert abs(frame.ball_heights_m[2]) < 0.02
+    failure = balls_off_ground(frame, ("red", "yellow", "blue"), 0.05, "blue")
+    assert "the blue ball's centre stands" in failure.message
+    assert "where a ball's stands 0.05 m" in failure.message and "blue" in (failure.hint or "")

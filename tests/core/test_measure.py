@@ -378,15 +378,22 @@ def test_mixed_pixels_behind_a_wire_one_view_shows_and_the_other_sees_past_are_n
     _assert_within_5_percent(measure(capture).merged, truth)
 
 
-def test_a_ball_seen_off_the_ground_in_every_view_fails_the_registration_naming_it(tmp_path: Path) -> None:
+def test_a_ball_one_view_does_not_show_is_placed_by_the_two_it_shows_and_the_ground(tmp_path: Path) -> None:
     """Mixed seed 2036059, found by the accuracy benchmark: the red ball is hidden in views/2, and both
-    views take a fallen apple 12 cm from the yellow ball for it, its fitted centre at ground level. The
-    triangles agree (it is one object), but the balls' plane tilted 34 degrees from the ground and W came
-    out 23.5 % narrow with no error. No other red sphere rests on the ground: a clear failure."""
+    views took a fallen apple 12 cm from the yellow ball for it. The triangles agreed (it is one object),
+    but the balls' plane tilted 34 degrees from the ground and W came out 23.5 % narrow with no error;
+    refusing the apple then failed the capture, as no other red sphere rests on the ground. views/2's
+    yellow and blue balls and its ground's up carry views/1's triangle onto it: the red ball is placed
+    there, unseen (views/2 does not see through that place), within 2 cm, and the tree is measured right."""
     capture = simulate_capture(tmp_path / "tree", seed=2036059, n_views=2, scenario="mixed")
-    with pytest.raises(RegistrationFailed, match="the red ball's centre stands") as info:
-        measure(capture)
-    assert info.value.hint is not None and "red" in info.value.hint
+    truth = _truth(capture)
+    result = measure(capture)
+    second = next(v for v in result.views if v.view == "views/2")
+    assert second.balls_placed_unseen == ("red",) and second.balls["red"].points == 0
+    for view in ("views/1", "views/2"):
+        for color in ("red", "yellow", "blue"):
+            assert _ball_error_m(result, truth, view, color) < 0.02, (view, color)
+    _assert_within_5_percent(result.merged, truth)
 
 
 def test_balls_chosen_again_when_the_first_choice_lies_off_the_ground(tmp_path: Path) -> None:
