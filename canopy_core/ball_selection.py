@@ -274,6 +274,8 @@ def select_balls(
             _search_where_placed,
             _search_round_trunk,
             _search_where_placed,
+            _search_by_pair,
+            _search_where_placed,
             _place_hidden,
         )
         if len(views) > 1 and len(config.colors) >= 3
@@ -410,25 +412,24 @@ def _search_round_trunk(
     grass and leaves outscore all along the circle round the shared ball (:func:`_search_on_circles`): the
     trunk narrows the circle to one place. The ball's distance from the trunk must agree between the views
     (``max_trunk_reach_mismatch_m``), else they found different trunks, or a post, and nothing is placed.
-    Returns, per view, the spheres added."""
+    Every likely sphere of the shared colour is tried in both views, each with the trunk found round it:
+    a look-alike may outscore the shared ball in either (2048017: straw in both). Returns, per view, the
+    spheres added."""
     del per_view  # one shared ball suffices here
-    feet: dict[tuple[int, str], np.ndarray | None] = {}
+    feet: dict[tuple[int, int], np.ndarray | None] = {}
 
-    def foot(index: int, color: str) -> np.ndarray | None:
-        """The trunk's foot in view ``index``, sought round its likeliest ``color`` ball."""
-        if (index, color) not in feet:
+    def foot(index: int, ball: BallCandidate) -> np.ndarray | None:
+        """The trunk's foot in view ``index``, sought round ``ball``."""
+        if (index, id(ball)) not in feet:
             ground, scene = grounds[index], views[index].scene
-            feet[index, color] = (
+            feet[index, id(ball)] = (
                 None
                 if ground is None or scene is None
                 else view_trunk_foot(
-                    scene.cloud.points_m,
-                    ground,
-                    shortlists[index].plausible[color][0].fit.center_m,
-                    config.max_trunk_distance_m,
+                    scene.cloud.points_m, ground, ball.fit.center_m, config.max_trunk_distance_m
                 )
             )
-        return feet[index, color]
+        return feet[index, id(ball)]
 
     added: list[list[BallCandidate]] = [[] for _ in views]
     for target, (view, shortlist, ground) in enumerate(zip(views, shortlists, grounds, strict=True)):
@@ -440,28 +441,35 @@ def _search_round_trunk(
                 or ground is None
                 or anchor_ground is None
                 or not shortlists[anchor].plausible[color]
-                or not shortlists[anchor].plausible[shared]
-                or not shortlist.plausible[shared]
             ):
                 continue
-            there, here = foot(anchor, shared), foot(target, shared)
-            if there is None or here is None:
-                continue
-            estimate = _carried_round_trunk(
-                shortlists[anchor].plausible[color][0].fit.center_m,
-                (shortlists[anchor].plausible[shared][0].fit.center_m, there, anchor_ground),
-                (shortlist.plausible[shared][0].fit.center_m, here, ground),
-                config,
+            wanted = shortlists[anchor].plausible[color][0].fit.center_m
+            # Every likely sphere of the shared colour, in both views: a look-alike may outscore the ball.
+            pairs = itertools.product(
+                list(shortlists[anchor].plausible[shared]), list(shortlist.plausible[shared])
             )
-            if estimate is None or any(
-                np.linalg.norm(c.fit.center_m - estimate) < config.radius_m
-                for c in shortlist.plausible[color]
-            ):
-                continue
-            found = view.sphere_near(estimate, color, config)
-            if found is not None and np.linalg.norm(found.fit.center_m - estimate) < _PLACEMENT_TOLERANCE_M:
-                shortlist.plausible[color].append(found)
-                added[target].append(found)
+            for seen, ball in pairs:
+                there, here = foot(anchor, seen), foot(target, ball)
+                if there is None or here is None:
+                    continue
+                estimate = _carried_round_trunk(
+                    wanted,
+                    (seen.fit.center_m, there, anchor_ground),
+                    (ball.fit.center_m, here, ground),
+                    config,
+                )
+                if estimate is None or any(
+                    np.linalg.norm(c.fit.center_m - estimate) < config.radius_m
+                    for c in shortlist.plausible[color]
+                ):
+                    continue
+                found = view.sphere_near(estimate, color, config)
+                if (
+                    found is not None
+                    and np.linalg.norm(found.fit.center_m - estimate) < _PLACEMENT_TOLERANCE_M
+                ):
+                    shortlist.plausible[color].append(found)
+                    added[target].append(found)
     return added
 
 
@@ -509,6 +517,84 @@ def _place_hidden(
                 known.append(placed)
                 added[target].append(placed)
     return added
+
+
+def _search_by_pair(
+    views: Sequence[ViewBallCandidates],
+    shortlists: list[_Shortlist],
+    per_view: list[list[tuple[float, tuple[BallCandidate, ...]]]],
+    grounds: Sequence[GroundPlane | None],
+    config: BallConfig,
+) -> list[list[BallCandidate]]:
+    """Look for a ball that no view holds a sphere of, where two views both show fragments of it: each
+    place one view's points of its colour gather (:meth:`ViewBallCandidates.places_of`, within twice
+    ``max_trunk_distance_m`` of the pair) where a sphere is found (:meth:`ViewBallCandidates.sphere_near`)
+    is carried onto the other view by the rigid motion that lays a pair of balls both views show, and
+    the ground's up, on each other's (:func:`_pair_frame`); a sphere must be found there too, within
+    ``_PLACEMENT_TOLERANCE_M``. Both then join their views' shortlists.
+
+    For a third ball a third of which each view sees at 4 m: no triangle places it, and no view has it to
+    draw a circle round (2045012: the blue ball, 23-25 points in each view). Two fragments of a sphere
+    found at one place of the floor by two views are a ball where one alone is not. Returns, per view, the
+    spheres added."""
+    del per_view  # the pair both views show places the ball, not a triangle
+    added: list[list[BallCandidate]] = [[] for _ in views]
+    for color in config.colors:
+        others = [other for other in config.colors if other != color][:2]
+        for source, target in itertools.permutations(range(len(views)), 2):
+            source_ground, target_ground = grounds[source], grounds[target]
+            if source_ground is None or target_ground is None:
+                continue
+            for there, here in _shared_pairs(shortlists[source], shortlists[target], others, config):
+                frame_there = _pair_frame(there[0], there[1], source_ground.normal)
+                frame_here = _pair_frame(here[0], here[1], target_ground.normal)
+                if frame_there is None or frame_here is None:
+                    continue
+                middle = (there[0] + there[1]) / 2
+                for guess in views[source].places_of(
+                    color, config, around_m=middle, reach_m=2 * config.max_trunk_distance_m
+                ):
+                    seen = views[source].sphere_near(guess, color, config)
+                    if seen is None or seen.color_scores[color] < config.min_color_score:
+                        continue
+                    carried = (here[0] + here[1]) / 2 + frame_here @ (
+                        frame_there.T @ (seen.fit.center_m - middle)
+                    )
+                    found = views[target].sphere_near(carried, color, config)
+                    if (
+                        found is None
+                        or np.linalg.norm(found.fit.center_m - carried) >= _PLACEMENT_TOLERANCE_M
+                    ):
+                        continue
+                    for index, sphere in ((source, seen), (target, found)):
+                        known = shortlists[index].plausible[color]
+                        if not any(
+                            np.linalg.norm(c.fit.center_m - sphere.fit.center_m) < config.radius_m
+                            for c in known
+                        ):
+                            known.append(sphere)
+                            added[index].append(sphere)
+    return added
+
+
+def _shared_pairs(
+    first: _Shortlist, second: _Shortlist, colors: list[str], config: BallConfig
+) -> list[tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]]:
+    """The pairs of likely spheres of two ``colors`` in two views that stand the same distance apart in
+    both (within ``max_distance_mismatch_m``): each a pair of centres in the first view and in the
+    second."""
+    if len(colors) < 2:
+        return []
+    matched = []
+    for a, b in itertools.product(first.plausible[colors[0]], first.plausible[colors[1]]):
+        apart = float(np.linalg.norm(a.fit.center_m - b.fit.center_m))
+        for c, d in itertools.product(second.plausible[colors[0]], second.plausible[colors[1]]):
+            if (
+                abs(float(np.linalg.norm(c.fit.center_m - d.fit.center_m)) - apart)
+                <= config.max_distance_mismatch_m
+            ):
+                matched.append(((a.fit.center_m, b.fit.center_m), (c.fit.center_m, d.fit.center_m)))
+    return matched
 
 
 def _carried_round_trunk(

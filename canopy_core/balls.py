@@ -243,6 +243,38 @@ class ViewBallCandidates:
                 return candidate
         return None
 
+    def places_of(
+        self, color: str, config: BallConfig, *, around_m: np.ndarray, reach_m: float
+    ) -> list[np.ndarray]:
+        """Where the points of ``color`` gather within ``reach_m`` of ``around_m``, as guesses of a ball's
+        centre: the points binned in cells a ball's diameter wide, the ``_MAX_PEAKS`` fullest cells (at
+        least half ``config.min_points``) each giving its points' mean pushed a radius farther along the
+        camera's ray (a ball's visible side lies a radius before its centre). For a ball no vote found:
+        a third of it in view at 4 m gives a dozen points whose normals scatter too much to vote together.
+        """
+        if self.scene is None:
+            return []
+        cloud = self.scene.cloud
+        index = config.colors.index(color)
+        of_color = cloud.has_color & (self.scene.likelihood[index] >= _SEED_LIKELIHOOD)
+        of_color &= np.linalg.norm(cloud.points_m - around_m, axis=1) < reach_m
+        points = cloud.points_m[of_color]
+        if points.shape[0] == 0:
+            return []
+        _, cell, counts = np.unique(
+            np.floor(points / config.diameter_m).astype(np.int64),
+            axis=0,
+            return_inverse=True,
+            return_counts=True,
+        )
+        guesses = []
+        for fullest in np.argsort(-counts, kind="stable")[:_MAX_PEAKS]:
+            if counts[fullest] < config.min_points / 2:
+                break
+            mean = points[cell.ravel() == fullest].mean(axis=0)
+            guesses.append(mean * (1.0 + config.radius_m / max(float(np.linalg.norm(mean)), 1e-9)))
+        return guesses
+
     def hidden_ball_at(
         self, centre_m: np.ndarray, covariance_m2: np.ndarray, config: BallConfig
     ) -> BallCandidate | None:

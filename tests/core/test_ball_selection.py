@@ -9,6 +9,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from canopy_core.backproject import ViewCloud
+from canopy_core.ball_preview import ball_report
 from canopy_core.ball_selection import _carried_round_trunk, check_ball_spacing, choose_in_view, select_balls
 from canopy_core.balls import BallCandidate, ViewBallCandidates, find_ball_candidates
 from canopy_core.config import BallConfig
@@ -226,6 +227,11 @@ def test_a_ball_hidden_whole_in_one_view_is_placed_there_by_the_pair_it_shows_an
     for choice, truth in zip(chosen, (truth_1, truth_2), strict=True):
         for color in COLORS:
             assert np.linalg.norm(choice.chosen[color].fit.center_m - truth[color]) < 0.006, color
+    named = [views[0], replace(views[1], view="views/2")]
+    report = ball_report(named, config, grounds=[_ground(1), _ground(2)])  # what `canopy balls` says
+    assert report.to_dict()["views"]["views/1"]["blue"]["placed_unseen"] is True
+    (line,) = [line for line in report.lines() if line.startswith("views/1 blue")]
+    assert line.endswith("0 points  rms 0.0 mm  (not seen in this view: placed where the other views put it)")
 
 
 def _fragment(cloud: ViewCloud, centre: np.ndarray, *, keep: int, noise_m: float, seed: int) -> ViewCloud:
@@ -263,6 +269,29 @@ def test_a_ball_showing_a_dozen_noisy_points_is_found_where_the_other_views_plac
 
     assert chosen[1].found_by_position == ("blue",)
     assert np.linalg.norm(chosen[1].chosen["blue"].fit.center_m - truth_2["blue"]) < 0.03
+
+
+def test_a_ball_no_view_finds_is_found_where_fragments_in_two_views_meet() -> None:
+    """Grass leaves a quarter of the blue ball's pixels readable in view 1 (40, 2.55 m away) and a fifth
+    in view 2 (18, 3.45 m), each half a centimetre off: their normals scatter, no vote finds a sphere, and
+    no view holds one of it, so no triangle places it and no view has it to draw a circle round. Each place
+    where one view's blue points gather is carried onto the other view by the red and yellow balls both
+    show and the ground's up; a sphere is found at both ends, and the triangles agree."""
+    first, truth_1 = _view(1, [], [], seed=7)
+    second, truth_2 = _view(2, [], [], seed=8)
+    config = BallConfig()
+    views = [
+        find_ball_candidates(_fragment(first, truth_1["blue"], keep=40, noise_m=0.005, seed=3), config),
+        find_ball_candidates(_fragment(second, truth_2["blue"], keep=18, noise_m=0.005, seed=4), config),
+    ]
+    assert not any(c.problem is None and c.color_scores["blue"] > 0.3 for v in views for c in v.candidates)
+
+    chosen = select_balls(views, config, grounds=[_ground(1), _ground(2)])
+
+    for choice, truth in zip(chosen, (truth_1, truth_2), strict=True):
+        assert choice.found_by_position == ("blue",) and choice.placed_unseen == ()
+        for color in COLORS:
+            assert np.linalg.norm(choice.chosen[color].fit.center_m - truth[color]) < 0.02, color
 
 
 def _candidates(
