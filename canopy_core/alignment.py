@@ -216,12 +216,13 @@ def balls_and_frame(
     than ``balls.max_trunk_distance_m``, or off the ground round the balls (their plane tilted from the
     ground's by more than a slope allows), the sphere taken for it is a look-alike every view saw (an apple
     lying on the ground agrees with itself across views; a fallen apple's centre lies lower than a ball's):
-    the balls are chosen again without it, and without any other sphere that lies as far from the trunk
-    (the same apple fitted twice, its neighbours in a heap), so the ball is sought where the others place
-    it. The ball is named in the reference view's frame, but the look-alike may be another view's: when
-    each view took a look-alike for a different ball, each placed where the other's puts it, the triangles
-    agree and the reference's odd ball out is the other view's true one. So if choosing again without the
-    ball named fails, each other colour's choice is left out in turn.
+    the balls are chosen again without it (ruled out: no search finds it again as a fragment), and without
+    any other sphere that lies as far from the trunk (the same apple fitted twice, its neighbours in a
+    heap), so the ball is sought where the others place it. The ball is named in the reference view's
+    frame, but the look-alike may be another view's: when each view took a look-alike for a different
+    ball, each placed where the other's puts it, the triangles agree and the reference's odd ball out is
+    the other view's true one. So if choosing again without the ball named fails, each other colour's
+    choice is left out in turn.
 
     Raises
     ------
@@ -240,14 +241,15 @@ def balls_and_frame(
         without = []
         for view, choice, pose in zip(candidates, choices, view_to_reference, strict=True):
             world_from_view = ground.world_from_reference @ pose
+            # Ruled out, not merely dropped: no search may find the look-alike again as a fragment.
+            ruled = view.ruling_out(choice.chosen[color].fit.center_m, config.balls.radius_m)
             without.append(
                 replace(
-                    view,
+                    ruled,
                     candidates=tuple(
                         candidate
-                        for candidate in view.candidates
-                        if candidate is not choice.chosen[color]
-                        and _round_trunk(
+                        for candidate in ruled.candidates
+                        if _round_trunk(
                             candidate, world_from_view, trunk_xy, config.balls.max_trunk_distance_m
                         )
                     ),

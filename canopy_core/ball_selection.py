@@ -265,8 +265,9 @@ def select_balls(
     # compete with a ball one view sees whole and another only in part. Only if no combination agrees then,
     # each ball is sought at the distance another view puts it from a ball this view has (which may
     # complete a triangle that places the rest), even where look-alikes of its colour were found; if that
-    # fails too, where the trunk and the one ball two views share place it; and last, a ball a view does
-    # not show at all is placed, unseen, where two balls it shows and another view's triangle put it.
+    # fails too, where the trunk and the one ball two views share place it; then a ball a view does not
+    # show at all is placed, unseen, where two balls it shows and another view's triangle put it; and last,
+    # where no view has a triangle, a ball is sought where fragments of it in two views meet.
     searches = (
         (
             _search_where_placed,
@@ -274,9 +275,9 @@ def select_balls(
             _search_where_placed,
             _search_round_trunk,
             _search_where_placed,
+            _place_hidden,
             _search_by_pair,
             _search_where_placed,
-            _place_hidden,
         )
         if len(views) > 1 and len(config.colors) >= 3
         else ()
