@@ -336,7 +336,7 @@ def _search_where_placed(
         for missing, color in enumerate(config.colors):
             known = shortlist.plausible[color]
             for estimate, _ in _placements(shortlist, ground, others, missing, config):
-                if any(np.linalg.norm(c.fit.center_m - estimate) < config.radius_m for c in known):
+                if _listed_near(estimate, known, config.radius_m):
                     continue
                 found = view.sphere_near(estimate, color, config)
                 if (
@@ -384,10 +384,7 @@ def _search_on_circles(
                 found = view.sphere_near(estimate, color, config)
                 if found is None or (look_alikes and found.color_scores[color] < config.min_color_score):
                     continue
-                if any(
-                    np.linalg.norm(found.fit.center_m - c.fit.center_m) < config.radius_m
-                    for c in shortlist.plausible[color]
-                ):
+                if _listed_near(found.fit.center_m, shortlist.plausible[color], config.radius_m):
                     continue
                 if abs(float(np.linalg.norm(found.fit.center_m - centre)) - reach) < (
                     config.max_distance_mismatch_m
@@ -459,10 +456,7 @@ def _search_round_trunk(
                     (ball.fit.center_m, here, ground),
                     config,
                 )
-                if estimate is None or any(
-                    np.linalg.norm(c.fit.center_m - estimate) < config.radius_m
-                    for c in shortlist.plausible[color]
-                ):
+                if estimate is None or _listed_near(estimate, shortlist.plausible[color], config.radius_m):
                     continue
                 found = view.sphere_near(estimate, color, config)
                 if (
@@ -509,8 +503,8 @@ def _place_hidden(
     for target, (view, shortlist, ground) in enumerate(zip(views, shortlists, grounds, strict=True)):
         for color, estimate, covariance in wanted[target]:
             known = shortlist.plausible[color]
-            if sum(c.unseen for c in known) >= _CANDIDATES_PER_COLOR or any(
-                np.linalg.norm(c.fit.center_m - estimate) < config.radius_m for c in known
+            if sum(c.unseen for c in known) >= _CANDIDATES_PER_COLOR or _listed_near(
+                estimate, known, config.radius_m
             ):
                 continue
             placed = view.hidden_ball_at(estimate, covariance, config)
@@ -569,13 +563,16 @@ def _search_by_pair(
                         continue
                     for index, sphere in ((source, seen), (target, found)):
                         known = shortlists[index].plausible[color]
-                        if not any(
-                            np.linalg.norm(c.fit.center_m - sphere.fit.center_m) < config.radius_m
-                            for c in known
-                        ):
+                        if not _listed_near(sphere.fit.center_m, known, config.radius_m):
                             known.append(sphere)
                             added[index].append(sphere)
     return added
+
+
+def _listed_near(centre_m: np.ndarray, listed: Sequence[BallCandidate], radius_m: float) -> bool:
+    """Whether a sphere of ``listed`` lies within a ball's radius of ``centre_m``: the same ball, already
+    on the shortlist, where a search would add it twice."""
+    return any(np.linalg.norm(c.fit.center_m - centre_m) < radius_m for c in listed)
 
 
 def _shared_pairs(
@@ -583,13 +580,17 @@ def _shared_pairs(
 ) -> list[tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]]:
     """The pairs of likely spheres of two ``colors`` in two views that stand the same distance apart in
     both (within ``max_distance_mismatch_m``): each a pair of centres in the first view and in the
-    second."""
+    second. Balls placed unseen take no part: the pair must be seen in both views."""
     if len(colors) < 2:
         return []
+
+    def seen(shortlist: _Shortlist, color: str) -> list[BallCandidate]:
+        return [c for c in shortlist.plausible[color] if not c.unseen]
+
     matched = []
-    for a, b in itertools.product(first.plausible[colors[0]], first.plausible[colors[1]]):
+    for a, b in itertools.product(seen(first, colors[0]), seen(first, colors[1])):
         apart = float(np.linalg.norm(a.fit.center_m - b.fit.center_m))
-        for c, d in itertools.product(second.plausible[colors[0]], second.plausible[colors[1]]):
+        for c, d in itertools.product(seen(second, colors[0]), seen(second, colors[1])):
             if (
                 abs(float(np.linalg.norm(c.fit.center_m - d.fit.center_m)) - apart)
                 <= config.max_distance_mismatch_m
