@@ -249,9 +249,11 @@ def find_wires(
     max_slope = float(np.tan(np.radians(max_slope_deg)))
     wires: list[Wire] = []
 
-    def tried(pool: np.ndarray, members: np.ndarray, first: Wire | None) -> tuple[Wire | None, np.ndarray]:
-        """The wire fitted to ``members`` of ``pool`` (parallel to ``first`` when given) if it is one, and
-        the pool's points near the fitted line."""
+    def tried(
+        pool: np.ndarray, members: np.ndarray, first: Wire | None, *, open_span_m: float = _WIRE_OPEN_SPAN_M
+    ) -> tuple[Wire | None, np.ndarray]:
+        """The wire fitted to ``members`` of ``pool`` (parallel to ``first`` when given) if it is one (seen
+        over ``open_span_m`` at least), and the pool's points near the fitted line."""
         wire, members = _fit_wire(
             pool,
             members,
@@ -268,13 +270,18 @@ def find_wires(
             min_coverage=min_coverage,
             first=first,
             sight=sight,
+            open_span_m=open_span_m,
         ):
             return None, members
         return wire, members
 
+    def masked(pool: np.ndarray, wire: Wire) -> np.ndarray:
+        return pool[~wire_mask(pool, [wire], tolerance_m=tolerance_m, spread_m=spread_m)]
+
     for attempt in range(_WIRE_MAX_LINES):
         # The first wire is sought among thin lines in any direction; the trellis's other wires run beside
-        # it, so they are sought parallel to it, also where they are seen too briefly to look thin.
+        # it, so they are sought parallel to it: first where a stretch of one is seen thin, however briefly
+        # (beside a crown that hides the rest), and then also where they are seen too briefly to look thin.
         first = wires[0] if wires else None
         if first is None and attempt == _FIRST_WIRE_TRIES:
             break
@@ -296,23 +303,29 @@ def find_wires(
                     tolerance_m=tolerance_m,
                 )
             wires.append(wire)
-            thin_pool = thin_pool[~wire_mask(thin_pool, [wire], tolerance_m=tolerance_m, spread_m=spread_m)]
-            sparse_pool = sparse_pool[
-                ~wire_mask(sparse_pool, [wire], tolerance_m=tolerance_m, spread_m=spread_m)
-            ]
+            thin_pool, sparse_pool = masked(thin_pool, wire), masked(sparse_pool, wire)
+            if first is None:
+                # A line of leaves through the crown, parallel to the wires, must not claim first the
+                # mixed pixels round a wire seen thin only beside the crown (2049045: a line 7 cm above
+                # the top wire took its 35 cm beyond the crown, and W came out 12 % wide).
+                claimed = np.zeros(thin_pool.shape[0], dtype=bool)
+                for stretch in _parallel_stretches(thin_pool, wire, tolerance_m=tolerance_m):
+                    # A stretch thin, straight, level and parallel to a wire over _WIRE_STRETCH_M is that
+                    # much of a wire, as no line of leaves is: it need not be seen over _WIRE_OPEN_SPAN_M.
+                    beside = (
+                        None
+                        if stretch[claimed].any()
+                        else tried(thin_pool, stretch, wire, open_span_m=_WIRE_STRETCH_M)[0]
+                    )
+                    if beside is not None:
+                        wires.append(beside)
+                        claimed |= wire_mask(thin_pool, [beside], tolerance_m=tolerance_m, spread_m=spread_m)
+                        sparse_pool = masked(sparse_pool, beside)
+                thin_pool = thin_pool[~claimed]
         elif first is None:
             thin_pool = thin_pool[~members]
         else:
             sparse_pool = sparse_pool[~members]
-    if not wires:
-        return wires
-    claimed = wire_mask(thin_pool, wires, tolerance_m=tolerance_m, spread_m=spread_m)
-    for stretch in _parallel_stretches(thin_pool, wires[0], tolerance_m=tolerance_m):
-        if not stretch[claimed].any():
-            wire, _ = tried(thin_pool, stretch, wires[0])
-            if wire is not None:
-                wires.append(wire)
-                claimed |= wire_mask(thin_pool, [wire], tolerance_m=tolerance_m, spread_m=spread_m)
     return wires
 
 
@@ -674,10 +687,12 @@ def _crosses_as_wire(
     min_coverage: float,
     first: Wire | None,
     sight: _SightLines | None = None,
+    open_span_m: float = _WIRE_OPEN_SPAN_M,
 ) -> bool:
-    """Whether ``wire`` is one: seen (``seen_m``, its points in the search pool) over
-    :data:`_WIRE_OPEN_SPAN_M`, and either seen in :data:`_WIRE_SEEN_ALONE` of its chord through the
-    cylinder (sloping at most :data:`_SEEN_WIRE_MAX_SLOPE_DEG`), or crossing the cylinder level within
+    """Whether ``wire`` is one: seen (``seen_m``, its points in the search pool) over ``open_span_m``
+    (:data:`_WIRE_OPEN_SPAN_M`, or less for a thin stretch already judged a wire's), and either seen in
+    :data:`_WIRE_SEEN_ALONE` of its chord through the cylinder (sloping at most
+    :data:`_SEEN_WIRE_MAX_SLOPE_DEG`), or crossing the cylinder level within
     ``max_slope``; a wire sought parallel to the ``first`` one found, within ``max_slope`` of that one's
     slope: the trellis's wires are strung between the same posts, so they slope alike in the ground frame,
     which follows the floor around the tree and may tilt by degrees against the row's level (an
@@ -697,7 +712,7 @@ def _crosses_as_wire(
     start, end = chord
     seen = (seen_m[:, :2] - wire.origin_xy_m) @ wire.direction_xy
     seen_stretches = _stretches_holding(seen, start, end)
-    if np.ptp(seen) < _WIRE_OPEN_SPAN_M:
+    if np.ptp(seen) < open_span_m:
         return False
     if seen_stretches.mean() >= _WIRE_SEEN_ALONE:
         return abs(wire.slope) <= np.tan(np.radians(_SEEN_WIRE_MAX_SLOPE_DEG))
