@@ -250,16 +250,19 @@ def find_wires(
     wires: list[Wire] = []
 
     def tried(
-        pool: np.ndarray, members: np.ndarray, first: Wire | None, *, open_span_m: float = _WIRE_OPEN_SPAN_M
+        pool: np.ndarray, members: np.ndarray, first: Wire | None, *, stretch: bool = False
     ) -> tuple[Wire | None, np.ndarray]:
-        """The wire fitted to ``members`` of ``pool`` (parallel to ``first`` when given) if it is one (seen
-        over ``open_span_m`` at least), and the pool's points near the fitted line."""
+        """The wire fitted to ``members`` of ``pool`` (parallel to ``first`` when given) if it is one, and
+        the pool's points near the fitted line. A thin ``stretch`` parallel to ``first`` is fitted at its
+        slope and need be seen over :data:`_WIRE_STRETCH_M` only: thin, straight, level and parallel to a
+        wire over that length, it is that much of a wire as no line of leaves is."""
         wire, members = _fit_wire(
             pool,
             members,
             roi_radius_m=roi_radius_m,
             tolerance_m=tolerance_m,
             direction_xy=None if first is None else first.direction_xy,
+            slope=first.slope if stretch and first is not None else None,
         )
         if wire is None or not _crosses_as_wire(
             wire,
@@ -270,7 +273,7 @@ def find_wires(
             min_coverage=min_coverage,
             first=first,
             sight=sight,
-            open_span_m=open_span_m,
+            open_span_m=_WIRE_STRETCH_M if stretch else _WIRE_OPEN_SPAN_M,
         ):
             return None, members
         return wire, members
@@ -310,12 +313,8 @@ def find_wires(
                 # the top wire took its 35 cm beyond the crown, and W came out 12 % wide).
                 claimed = np.zeros(thin_pool.shape[0], dtype=bool)
                 for stretch in _parallel_stretches(thin_pool, wire, tolerance_m=tolerance_m):
-                    # A stretch thin, straight, level and parallel to a wire over _WIRE_STRETCH_M is that
-                    # much of a wire, as no line of leaves is: it need not be seen over _WIRE_OPEN_SPAN_M.
                     beside = (
-                        None
-                        if stretch[claimed].any()
-                        else tried(thin_pool, stretch, wire, open_span_m=_WIRE_STRETCH_M)[0]
+                        None if stretch[claimed].any() else tried(thin_pool, stretch, wire, stretch=True)[0]
                     )
                     if beside is not None:
                         wires.append(beside)
@@ -584,8 +583,10 @@ def _fit_wire(
     roi_radius_m: float,
     tolerance_m: float,
     direction_xy: np.ndarray | None,
+    slope: float | None = None,
 ) -> tuple[Wire | None, np.ndarray]:
-    """A wire fitted to the ``members`` of ``pool_m`` (along ``direction_xy`` when given), then refitted to
+    """A wire fitted to the ``members`` of ``pool_m`` (along ``direction_xy`` and at ``slope`` when given:
+    a stretch of a few decimetres fixes no slope, and the trellis's wires slope alike), then refitted to
     the pool's points within :data:`_WIRE_FIT_REACH` tolerances of it, each weighted down by its distance
     (a Cauchy weight of scale ``tolerance_m``); and the pool's points within ``tolerance_m`` of the result.
     None when fewer than three points remain or the line misses the cylinder.
@@ -610,8 +611,11 @@ def _fit_wire(
         if _chord(origin, direction, roi_radius_m) is None:
             return None, members
         along = (points[:, :2] - origin) @ direction
-        slope, height = np.polyfit(along, points[:, 2], 1, w=np.sqrt(weight))
-        wire = Wire(origin, direction, float(height), float(slope))
+        if slope is None:
+            rise, height = np.polyfit(along, points[:, 2], 1, w=np.sqrt(weight))
+        else:
+            rise, height = slope, np.average(points[:, 2] - slope * along, weights=weight)
+        wire = Wire(origin, direction, float(height), float(rise))
         distance = wire.distance_m(pool_m)
         weights = np.where(
             distance < _WIRE_FIT_REACH * tolerance_m, 1.0 / (1.0 + (distance / tolerance_m) ** 2), 0.0
