@@ -66,7 +66,9 @@ def align_views(
     clutter that happens to close a triangle of the right sides. Each ball of that view, and then of the
     reference view, is ruled out in turn (:meth:`ViewBallCandidates.ruling_out`) and the balls chosen
     again; of the choices the surfaces agree with as closely as with a sound registration (ICP keeps its
-    refinement of every view), the one they contradict least is taken.
+    refinement of every view) and that rest on balls seen (none placed unseen), the one they contradict
+    least is taken. A first choice with a ball placed unseen must itself meet that bound
+    (:func:`_check_placed_unseen`).
 
     Parameters
     ----------
@@ -87,6 +89,7 @@ def align_views(
     first = _aligned(view_names, clouds, focal_px, candidates, grounds, config, refining=refining)
     try:
         check_icp_agreement(_reports(first), config.icp)
+        _check_placed_unseen(first, config.icp)
         return first
     except RegistrationFailed as disagreement:
         failure = disagreement
@@ -103,7 +106,10 @@ def align_views(
                 again = _aligned(view_names, clouds, focal_px, retry, grounds, config)
             except MeasurementError:
                 continue
-            if _within_refinement_bounds(again, config.icp):
+            # A choice made again rests on balls seen: one placed unseen among look-alikes ruled out in
+            # turn closes triangles the surfaces leave loose enough to pass (2051009).
+            unseen = any(choice.placed_unseen for choice in again.choices)
+            if not unseen and _within_refinement_bounds(again, config.icp):
                 agreeing.append(again)
     if not agreeing:
         raise failure
@@ -124,6 +130,32 @@ def _within_refinement_bounds(alignment: Alignment, config: IcpConfig) -> bool:
         if report.ball_shift_m > shift_m or report.rotation_change_deg > turn_deg:
             return False
     return True
+
+
+def _check_placed_unseen(alignment: Alignment, config: IcpConfig) -> None:
+    """Refuse a pose that rests on a ball placed unseen unless the surfaces confirm it: ICP keeps within the
+    bounds of a sound registration (:func:`_within_refinement_bounds`). Two balls and the ground's up fix
+    such a view, and a look-alike in the pair, or in the triangle that placed the ball, closes the same
+    triangle; only the ground and the trunk can tell (2051009: a yellow look-alike in the pair, the red ball
+    placed 1.2 m off, W 75 % wide, with ICP wanting 3.1 degrees more than such a pose leaves open).
+
+    Raises
+    ------
+    RegistrationFailed
+        Naming the first view with a ball placed unseen and the colours placed.
+    """
+    placed = [choice for choice in alignment.choices if choice.placed_unseen]
+    if not placed or _within_refinement_bounds(alignment, config):
+        return
+    choice = placed[0]
+    raise RegistrationFailed(
+        f"the {' and '.join(choice.placed_unseen)} ball, not seen in this view, was placed where the other "
+        "views put it, and the view's ground and trunk do not confirm that pose",
+        view=choice.view,
+        field="icp.max_rotation_found_by_position_deg",
+        hint="check with `canopy balls --preview` which sphere was taken for each ball; lay the balls where "
+        "every view sees them, in open view, and capture again",
+    )
 
 
 def _loose(choice: BallChoice) -> bool:
