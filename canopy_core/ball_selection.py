@@ -338,11 +338,8 @@ def _search_where_placed(
             for estimate, _ in _placements(shortlist, ground, others, missing, config):
                 if _listed_near(estimate, known, config.radius_m):
                     continue
-                found = view.sphere_near(estimate, color, config)
-                if (
-                    found is not None
-                    and np.linalg.norm(found.fit.center_m - estimate) < _PLACEMENT_TOLERANCE_M
-                ):
+                found = _sphere_where_placed(view, estimate, color, config)
+                if found is not None:
                     known.append(found)
                     added[target].append(found)
     return added
@@ -458,11 +455,8 @@ def _search_round_trunk(
                 )
                 if estimate is None or _listed_near(estimate, shortlist.plausible[color], config.radius_m):
                     continue
-                found = view.sphere_near(estimate, color, config)
-                if (
-                    found is not None
-                    and np.linalg.norm(found.fit.center_m - estimate) < _PLACEMENT_TOLERANCE_M
-                ):
+                found = _sphere_where_placed(view, estimate, color, config)
+                if found is not None:
                     shortlist.plausible[color].append(found)
                     added[target].append(found)
     return added
@@ -555,11 +549,8 @@ def _search_by_pair(
                     carried = (here[0] + here[1]) / 2 + frame_here @ (
                         frame_there.T @ (seen.fit.center_m - middle)
                     )
-                    found = views[target].sphere_near(carried, color, config)
-                    if (
-                        found is None
-                        or np.linalg.norm(found.fit.center_m - carried) >= _PLACEMENT_TOLERANCE_M
-                    ):
+                    found = _sphere_where_placed(views[target], carried, color, config)
+                    if found is None:
                         continue
                     for index, sphere in ((source, seen), (target, found)):
                         known = shortlists[index].plausible[color]
@@ -567,6 +558,17 @@ def _search_by_pair(
                             known.append(sphere)
                             added[index].append(sphere)
     return added
+
+
+def _sphere_where_placed(
+    view: ViewBallCandidates, estimate_m: np.ndarray, color: str, config: BallConfig
+) -> BallCandidate | None:
+    """The sphere :meth:`ViewBallCandidates.sphere_near` finds near where a ball is placed, if it lies
+    within ``_PLACEMENT_TOLERANCE_M`` of that place; None otherwise."""
+    found = view.sphere_near(estimate_m, color, config)
+    if found is None or np.linalg.norm(found.fit.center_m - estimate_m) >= _PLACEMENT_TOLERANCE_M:
+        return None
+    return found
 
 
 def _listed_near(centre_m: np.ndarray, listed: Sequence[BallCandidate], radius_m: float) -> bool:

@@ -288,12 +288,10 @@ class ViewBallCandidates:
         ``config.max_seen_through_share`` of them reach a surface behind its near side, the place is open
         and no ball lies there. A place outside the image, or without depth readings, hides a ball.
         """
-        if self.scene is None:
-            return None
         radius = config.radius_m
-        rays = self.scene.window(centre_m, radius, radii=0.5)
-        if any(np.linalg.norm(centre_m - c) < radius for c in self.ruled_out_m):
+        if self.scene is None or any(np.linalg.norm(centre_m - c) < radius for c in self.ruled_out_m):
             return None
+        rays = self.scene.window(centre_m, radius, radii=0.5)
         if rays.size:
             points = self.scene.cloud.points_m[rays]
             ranges = np.linalg.norm(points, axis=1)
