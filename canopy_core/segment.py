@@ -9,12 +9,16 @@ view shows it as a sparse, straight, nearly level line of points, a little off t
 pixels, see :func:`wire_mask`), that crosses the whole cylinder, hidden where it runs through the crown;
 a branch is thicker, and ends inside the crown. So the first wire is sought by a Hough transform over
 level lines (direction, offset, height) among the points whose neighbourhood, in one view, is a thin line
-(local principal components); the trellis's other wires run beside it, so they are sought parallel to it,
+(local principal components), and when none is a wire, among the points in open air (no more round them
+than a line's: a wire above the crown, against the sky, that dropout breaks into pieces too short to look
+thin); the trellis's other wires run beside it, so they are sought parallel to it,
 among all the points with a sparse neighbourhood, and from each straight, level chain of thin-line
 points parallel to it (a wire the crown hides but for a short stretch). A line is a wire when it is
 nearly level, seen over a length that leaves and twigs never line up over, and crosses the cylinder: its
-own points and what hides it cover most of its chord. Its points are then removed along its whole
-length, inside the crown too.
+own points and what hides it cover most of its chord; or when it stands free, nothing but itself within a
+neighbourhood's radius, seen along a fifth of its chord and between sightings half of it apart (against
+the sky, dropout takes most of a thin wire and nothing hides the rest). Its points are then removed along
+its whole length, inside the crown too.
 
 The other intruders are separated from the tree by a gap. The tree itself need not be one connected body
 in the data: thin scaffold branches hidden by leaves leave its crown floating above its trunk. So the
@@ -98,6 +102,11 @@ within this angle, to the line its points cover most of the chord along (:func:`
 _WIRE_VIEW_OFFSET_M = 0.1
 """A view's line of a wire stands up to this far off the wire: its mixed pixels blend the wire's depth with
 the background's, by more against a near background (7 cm in a simulated capture)."""
+_FREE_STANDING_SHARE = 0.9
+"""A line stands free, in open air, when at least this share of the points (cells) within
+:data:`_WIRE_NEIGHBOURHOOD_M` of it lie on it, within the tolerance: nothing but a wire stands along a
+straight, level line with nothing round it (a wire above a crown, seen against the sky). The rest allows
+a stray flying pixel."""
 _WIRE_STRETCH_MAX_TURN_DEG = 10.0
 """Such a chain runs within this angle of the wire found: its own direction, over a few cells of
 ``tolerance_m``, errs by several degrees; the wire is then fitted along the found wire's direction."""
@@ -244,8 +253,9 @@ def find_wires(
     )
     cells = np.concatenate(views)
     line_cells = [_line_cells(view, tolerance_m) for view in views]
-    sparse_pool = cells[np.concatenate([sparse for sparse, _ in line_cells])]
-    thin_pool = cells[np.concatenate([thin for _, thin in line_cells])]
+    sparse_pool = cells[np.concatenate([sparse for sparse, _, _ in line_cells])]
+    thin_pool = cells[np.concatenate([thin for _, thin, _ in line_cells])]
+    open_pool = cells[np.concatenate([in_open_air for _, _, in_open_air in line_cells])]
     max_slope = float(np.tan(np.radians(max_slope_deg)))
     wires: list[Wire] = []
 
@@ -274,6 +284,7 @@ def find_wires(
             first=first,
             sight=sight,
             open_span_m=_WIRE_STRETCH_M if stretch else _WIRE_OPEN_SPAN_M,
+            tolerance_m=tolerance_m,
         ):
             return None, members
         return wire, members
@@ -281,50 +292,61 @@ def find_wires(
     def masked(pool: np.ndarray, wire: Wire) -> np.ndarray:
         return pool[~wire_mask(pool, [wire], tolerance_m=tolerance_m, spread_m=spread_m)]
 
-    for attempt in range(_WIRE_MAX_LINES):
-        # The first wire is sought among thin lines in any direction; the trellis's other wires run beside
-        # it, so they are sought parallel to it: first where a stretch of one is seen thin, however briefly
-        # (beside a crown that hides the rest), and then also where they are seen too briefly to look thin.
-        first = wires[0] if wires else None
-        if first is None and attempt == _FIRST_WIRE_TRIES:
+    # The first wire is sought among thin lines in any direction, the most evident first; when none is one,
+    # among lines in open air (a wire above a crown, which dropout breaks into pieces too short to look
+    # thin), where it must stand free. Every line tried counts against the search's lines.
+    first: Wire | None = None
+    tries = 0
+    for free in (False, True):
+        pool = open_pool if free else thin_pool
+        for _ in range(_FIRST_WIRE_TRIES):
+            members = _best_line(pool, tolerance_m=tolerance_m, roi_radius_m=roi_radius_m)
+            if members is None:
+                break
+            tries += 1
+            wire, members = tried(pool, members, None)
+            if wire is not None and (
+                not free or _stands_free(wire, cells, roi_radius_m=roi_radius_m, tolerance_m=tolerance_m)
+            ):
+                first = wire
+                break
+            pool = pool[~members]
+        if not free:
+            thin_pool = pool
+        if first is not None:
             break
-        pool = thin_pool if first is None else sparse_pool
-        members = (
-            _best_line(pool, tolerance_m=tolerance_m, roi_radius_m=roi_radius_m)
-            if first is None
-            else _best_parallel_line(pool, first, tolerance_m=tolerance_m)
-        )
+    if first is None:
+        return []
+    first = _turned_to_cover(
+        first,
+        [view[sparse] for view, (sparse, _, _) in zip(views, line_cells, strict=True)],
+        roi_radius_m=roi_radius_m,
+        tolerance_m=tolerance_m,
+    )
+    wires = [first]
+    thin_pool, sparse_pool = masked(thin_pool, first), masked(sparse_pool, first)
+    # A line of leaves through the crown, parallel to the wires, must not claim first the mixed pixels
+    # round a wire seen thin only beside the crown (2049045: a line 7 cm above the top wire took its 35 cm
+    # beyond the crown, and W came out 12 % wide). So the trellis's other wires are sought parallel to the
+    # first: where a stretch of one is seen thin, however briefly (beside a crown that hides the rest), and
+    # then also where they are seen too briefly to look thin.
+    claimed = np.zeros(thin_pool.shape[0], dtype=bool)
+    for stretch in _parallel_stretches(thin_pool, first, tolerance_m=tolerance_m):
+        beside = None if stretch[claimed].any() else tried(thin_pool, stretch, first, stretch=True)[0]
+        if beside is not None:
+            wires.append(beside)
+            claimed |= wire_mask(thin_pool, [beside], tolerance_m=tolerance_m, spread_m=spread_m)
+            sparse_pool = masked(sparse_pool, beside)
+    for _ in range(tries, _WIRE_MAX_LINES):
+        members = _best_parallel_line(sparse_pool, first, tolerance_m=tolerance_m)
         if members is None:
             break
-        wire, members = tried(pool, members, first)
-        if wire is not None:
-            if first is None:
-                wire = _turned_to_cover(
-                    wire,
-                    [view[sparse] for view, (sparse, _) in zip(views, line_cells, strict=True)],
-                    roi_radius_m=roi_radius_m,
-                    tolerance_m=tolerance_m,
-                )
-            wires.append(wire)
-            thin_pool, sparse_pool = masked(thin_pool, wire), masked(sparse_pool, wire)
-            if first is None:
-                # A line of leaves through the crown, parallel to the wires, must not claim first the
-                # mixed pixels round a wire seen thin only beside the crown (2049045: a line 7 cm above
-                # the top wire took its 35 cm beyond the crown, and W came out 12 % wide).
-                claimed = np.zeros(thin_pool.shape[0], dtype=bool)
-                for stretch in _parallel_stretches(thin_pool, wire, tolerance_m=tolerance_m):
-                    beside = (
-                        None if stretch[claimed].any() else tried(thin_pool, stretch, wire, stretch=True)[0]
-                    )
-                    if beside is not None:
-                        wires.append(beside)
-                        claimed |= wire_mask(thin_pool, [beside], tolerance_m=tolerance_m, spread_m=spread_m)
-                        sparse_pool = masked(sparse_pool, beside)
-                thin_pool = thin_pool[~claimed]
-        elif first is None:
-            thin_pool = thin_pool[~members]
-        else:
+        wire, members = tried(sparse_pool, members, first)
+        if wire is None:
             sparse_pool = sparse_pool[~members]
+        else:
+            wires.append(wire)
+            sparse_pool = masked(sparse_pool, wire)
     return wires
 
 
@@ -450,23 +472,27 @@ def _cell_centroids(points_m: np.ndarray, cell_m: float) -> np.ndarray:
     return sums / counts[:, None]
 
 
-def _line_cells(cells_m: np.ndarray, tolerance_m: float) -> tuple[np.ndarray, np.ndarray]:
-    """Masks of the sparse cells, whose neighbourhood holds no more cells than a line's, and among them of
-    the thin-line cells, whose neighbourhood is a thin straight line: spread along one direction over at
-    least the neighbourhood's radius and across it by less than half the tolerance.
+def _line_cells(cells_m: np.ndarray, tolerance_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Masks of the sparse cells, whose neighbourhood holds no more cells than a line's; among them of the
+    thin-line cells, whose neighbourhood is a thin straight line: spread along one direction over at
+    least the neighbourhood's radius and across it by less than half the tolerance; and of the cells in
+    open air, whose neighbourhood holds no more than one line crossing it would, whatever their shape
+    (a wire far from everything, broken by dropout into pieces of a cell or two).
 
     Cells have an edge of ``tolerance_m``, so a line crosses at most ``2 r / tolerance_m + 1`` cells of a
     neighbourhood of radius r; twice as many allows for a noisy line's straddling cell boundaries. A
     neighbourhood holding more is part of a surface or a volume.
     """
     radius = _WIRE_NEIGHBOURHOOD_M
-    most = int(np.ceil(2 * (2 * radius / tolerance_m + 1)))
+    line = int(np.ceil(2 * radius / tolerance_m + 1))
+    most = 2 * line
     distances, neighbours = cKDTree(cells_m).query(
         cells_m, k=most + 1, distance_upper_bound=radius, workers=-1
     )
     found = np.isfinite(distances)
     count = found.sum(axis=1)
     sparse = count <= most
+    in_open_air = count <= line
     examined = np.flatnonzero(sparse & (count >= 3))
     found = found[examined]
     padded = np.vstack([cells_m, np.zeros((1, 3))])
@@ -481,7 +507,7 @@ def _line_cells(cells_m: np.ndarray, tolerance_m: float) -> tuple[np.ndarray, np
     # Across: within half the tolerance. Along: a line through the neighbourhood's centre at least its
     # radius long (a uniform spread over a length L has variance L^2 / 12).
     thin[examined] = (variances[:, 1] <= (tolerance_m / 2) ** 2) & (variances[:, 2] >= radius**2 / 12)
-    return sparse, thin
+    return sparse, thin, in_open_air
 
 
 def _best_line(pool_m: np.ndarray, *, tolerance_m: float, roi_radius_m: float) -> np.ndarray | None:
@@ -681,6 +707,20 @@ def _turned_to_cover(
     return refitted or along_views
 
 
+def _stands_free(wire: Wire, cells_m: np.ndarray, *, roi_radius_m: float, tolerance_m: float) -> bool:
+    """Whether ``wire`` stands in open air across the cylinder of ``roi_radius_m``: of every view's cells
+    (``cells_m``) within :data:`_WIRE_NEIGHBOURHOOD_M` of it along its chord, at least
+    :data:`_FREE_STANDING_SHARE` lie within ``tolerance_m`` of it. A wire above a crown, against the sky,
+    has nothing round it; a line of leaves has the rest of the crown."""
+    chord = wire.chord(roi_radius_m)
+    if chord is None:
+        return False
+    along = (cells_m[:, :2] - wire.origin_xy_m) @ wire.direction_xy
+    distance = wire.distance_m(cells_m)[(along >= chord[0]) & (along <= chord[1])]
+    near = np.count_nonzero(distance < _WIRE_NEIGHBOURHOOD_M)
+    return bool(near and np.count_nonzero(distance < tolerance_m) >= _FREE_STANDING_SHARE * near)
+
+
 def _crosses_as_wire(
     wire: Wire,
     seen_m: np.ndarray,
@@ -692,6 +732,7 @@ def _crosses_as_wire(
     first: Wire | None,
     sight: _SightLines | None = None,
     open_span_m: float = _WIRE_OPEN_SPAN_M,
+    tolerance_m: float,
 ) -> bool:
     """Whether ``wire`` is one: seen (``seen_m``, its points in the search pool) over ``open_span_m``
     (:data:`_WIRE_OPEN_SPAN_M`, or less for a thin stretch already judged a wire's), and either seen in
@@ -709,6 +750,11 @@ def _crosses_as_wire(
     crown) or lost to dropout. The first wire, sought in any direction, must also be seen where it crosses
     the cylinder's wall, within :data:`_WIRE_WALL_M` of both ends of its chord, or in
     :data:`_FIRST_WIRE_SEEN` of its chord; wires sought parallel to it need not.
+
+    A level line that stands free (:func:`_stands_free`, ``tolerance_m`` its thickness) crosses without
+    covering as much: seen in :data:`_FIRST_WIRE_SEEN` of its chord, between sightings at least
+    :data:`_WIRE_SEEN_ALONE` of it apart. Against the sky nothing hides a wire, and dropout takes most of
+    it (2051046: a top wire 0.5 m above the crown, seen in two stretches over 63 % of its chord).
     """
     chord = wire.chord(roi_radius_m)
     if chord is None:
@@ -722,6 +768,12 @@ def _crosses_as_wire(
         return abs(wire.slope) <= np.tan(np.radians(_SEEN_WIRE_MAX_SLOPE_DEG))
     if abs(wire.slope - (0.0 if first is None else first.slope)) > max_slope:
         return False
+    if (
+        np.ptp(seen) >= _WIRE_SEEN_ALONE * (end - start)
+        and seen_stretches.mean() >= _FIRST_WIRE_SEEN
+        and _stands_free(wire, cells_m, roi_radius_m=roi_radius_m, tolerance_m=tolerance_m)
+    ):
+        return True
     at_wall = int(np.ceil(_WIRE_WALL_M / _WIRE_BIN_M))
     seen_at_both_walls = bool(seen_stretches[:at_wall].any() and seen_stretches[-at_wall:].any())
     if not (first is not None or seen_at_both_walls or seen_stretches.mean() >= _FIRST_WIRE_SEEN):
