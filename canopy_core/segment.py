@@ -257,7 +257,6 @@ def find_wires(
     thin_pool = cells[np.concatenate([thin for _, thin, _ in line_cells])]
     open_pool = cells[np.concatenate([in_open_air for _, _, in_open_air in line_cells])]
     max_slope = float(np.tan(np.radians(max_slope_deg)))
-    wires: list[Wire] = []
 
     def tried(
         pool: np.ndarray, members: np.ndarray, first: Wire | None, *, stretch: bool = False
@@ -323,7 +322,7 @@ def find_wires(
         roi_radius_m=roi_radius_m,
         tolerance_m=tolerance_m,
     )
-    wires = [first]
+    wires: list[Wire] = [first]
     thin_pool, sparse_pool = masked(thin_pool, first), masked(sparse_pool, first)
     # A line of leaves through the crown, parallel to the wires, must not claim first the mixed pixels
     # round a wire seen thin only beside the crown (2049045: a line 7 cm above the top wire took its 35 cm
