@@ -67,8 +67,8 @@ def align_views(
     reference view, is ruled out in turn (:meth:`ViewBallCandidates.ruling_out`) and the balls chosen
     again; of the choices the surfaces agree with as closely as with a sound registration (ICP keeps its
     refinement of every view) and that rest on balls seen (none placed unseen), the one they contradict
-    least is taken. A first choice with a ball placed unseen must itself meet that bound
-    (:func:`_check_placed_unseen`).
+    least is taken. A first choice resting on a ball placed unseen, or on two fragments, must itself meet
+    that bound (:func:`_check_weakly_held`).
 
     Parameters
     ----------
@@ -89,7 +89,7 @@ def align_views(
     first = _aligned(view_names, clouds, focal_px, candidates, grounds, config, refining=refining)
     try:
         check_icp_agreement(_reports(first), config.icp)
-        _check_placed_unseen(first, config.icp)
+        _check_weakly_held(first, config.icp)
         return first
     except RegistrationFailed as disagreement:
         failure = disagreement
@@ -132,25 +132,36 @@ def _within_refinement_bounds(alignment: Alignment, config: IcpConfig) -> bool:
     return True
 
 
-def _check_placed_unseen(alignment: Alignment, config: IcpConfig) -> None:
-    """Refuse a pose that rests on a ball placed unseen unless the surfaces confirm it: ICP keeps within the
-    bounds of a sound registration (:func:`_within_refinement_bounds`). Two balls and the ground's up fix
-    such a view, and a look-alike in the pair, or in the triangle that placed the ball, closes the same
-    triangle; only the ground and the trunk can tell (2051009: a yellow look-alike in the pair, the red ball
-    placed 1.2 m off, W 75 % wide, with ICP wanting 3.1 degrees more than such a pose leaves open).
+def _check_weakly_held(alignment: Alignment, config: IcpConfig) -> None:
+    """Refuse a pose that rests on a ball placed unseen, or on two balls found only as fragments where the
+    other views place them, unless the surfaces confirm it: ICP keeps within the bounds of a sound
+    registration (:func:`_within_refinement_bounds`). Such a view's pose rests on one or two balls it
+    fits, and a look-alike among them, or in the triangle that placed the others, closes the same triangle;
+    only the ground and the trunk can tell. 2051009: a yellow look-alike in the pair, the red ball placed
+    1.2 m off, W 75 % wide, with ICP wanting 3.1 degrees more than such a pose leaves open. 2054014: a
+    yellow look-alike in views/1, views/2's red and yellow taken as fragments 1.2-1.8 m off (fitted radii
+    74 and 80 mm), ICP wanting 3.5 degrees, W 12 % wide; ICP's own pose was as wrong the other way.
 
     Raises
     ------
     RegistrationFailed
-        Naming the first view with a ball placed unseen and the colours placed.
+        Naming the first such view and the balls it placed or found as fragments.
     """
-    placed = [choice for choice in alignment.choices if choice.placed_unseen]
-    if not placed or _within_refinement_bounds(alignment, config):
+    weak = [
+        choice for choice in alignment.choices if choice.placed_unseen or len(choice.found_by_position) >= 2
+    ]
+    if not weak or _within_refinement_bounds(alignment, config):
         return
-    choice = placed[0]
-    raise RegistrationFailed(
+    choice = weak[0]
+    what = (
         f"the {' and '.join(choice.placed_unseen)} ball, not seen in this view, was placed where the other "
-        "views put it, and the view's ground and trunk do not confirm that pose",
+        "views put it"
+        if choice.placed_unseen
+        else f"the {' and '.join(choice.found_by_position)} balls were found only as fragments where the "
+        "other views place them"
+    )
+    raise RegistrationFailed(
+        f"{what}, and the view's ground and trunk do not confirm that pose",
         view=choice.view,
         field="icp.max_rotation_found_by_position_deg",
         hint="check with `canopy balls --preview` which sphere was taken for each ball; lay the balls where "
