@@ -390,3 +390,27 @@ def test_a_wire_seen_little_through_a_crown_on_a_floor_tilted_against_the_row_is
     assert len(found) == 1 and np.degrees(np.arctan(found[0].slope)) == pytest.approx(3.5, abs=0.3)
     kept = _tree_without_wires(views)
     assert max_horizontal_distance(kept) == pytest.approx(max_horizontal_distance(tree), abs=0.02)
+
+
+def test_a_wire_through_the_crown_seen_in_pieces_from_wall_to_wall_is_found_in_open_air() -> None:
+    """A wire through the crown's upper part, seen on both sides of it in pieces of a centimetre or two
+    every 20 cm, and one of 25 cm: the search among thin lines saw only that one piece, too short for a
+    wire, and it stayed in the crown's width (2055003: W 31 % wide). In open air, the pieces line up across
+    the whole cylinder, from wall to wall, as no leaves do."""
+    rng = np.random.default_rng(23)
+    tree = _tree(rng)
+    wire_z = 2.0
+    starts = np.concatenate([np.arange(-1.45, -0.75, 0.2), np.arange(0.8, 1.5, 0.2)])
+    pieces = [
+        _outside_crown(_wire_in_pieces(rng, z=wire_z, y=y, starts=starts, length_m=0.02))
+        for y in (0.01, -0.01)
+    ]
+    long = _wire_in_pieces(rng, z=wire_z, y=0.01, starts=np.array([0.9]), length_m=0.25)
+    views = [np.vstack([tree[::2], pieces[0], long]), np.vstack([tree[1::2], pieces[1]])]
+    assert max_horizontal_distance(_old_tree(views)) > max_horizontal_distance(tree) + 0.2  # the long piece
+
+    found = find_wires(views, roi_radius_m=ROI_RADIUS_M, **WIRES)
+
+    assert len(found) == 1 and found[0].height_m == pytest.approx(wire_z, abs=0.01)
+    kept = _tree_without_wires(views)
+    assert max_horizontal_distance(kept) == pytest.approx(max_horizontal_distance(tree), abs=0.02)
