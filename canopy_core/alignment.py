@@ -133,40 +133,52 @@ def _within_refinement_bounds(alignment: Alignment, config: IcpConfig) -> bool:
 
 
 def _check_weakly_held(alignment: Alignment, config: IcpConfig) -> None:
-    """Refuse a pose that rests on a ball placed unseen, or on two balls found only as fragments where the
-    other views place them, unless the surfaces confirm it: ICP keeps within the bounds of a sound
-    registration (:func:`_within_refinement_bounds`). Such a view's pose rests on one or two balls it
-    fits, and a look-alike among them, or in the triangle that placed the others, closes the same triangle;
-    only the ground and the trunk can tell. 2051009: a yellow look-alike in the pair, the red ball placed
-    1.2 m off, W 75 % wide, with ICP wanting 3.1 degrees more than such a pose leaves open. 2054014: a
-    yellow look-alike in views/1, views/2's red and yellow taken as fragments 1.2-1.8 m off (fitted radii
-    74 and 80 mm), ICP wanting 3.5 degrees, W 12 % wide; ICP's own pose was as wrong the other way.
+    """Refuse a pose that rests on a ball placed unseen, or on fewer than two balls that the view and the
+    reference view both fit as spheres (the others found only as fragments where the other views place
+    them), unless the surfaces confirm it: ICP keeps within the bounds of a sound registration
+    (:func:`_within_refinement_bounds`). A look-alike in such a view, or in the triangle that placed the
+    others, closes the same triangles; only the ground and the trunk can tell. 2051009: a yellow look-alike
+    in the pair, the red ball placed 1.2 m off, W 75 % wide, with ICP wanting 3.1 degrees more than such
+    a pose leaves open. 2054014: views/2's red and yellow balls taken as fragments 1.2-1.8 m off (fitted
+    radii 74 and 80 mm) where views/1's triangle with a yellow look-alike put them, ICP wanting 3.5
+    degrees, W 12 % wide (ICP's own pose was as wrong the other way). 2053020: each view fits one
+    look-alike and holds a fragment where the other's triangle puts it, only blue right in both, ICP
+    wanting 5.1 degrees, W 5 % wide.
 
     Raises
     ------
     RegistrationFailed
-        Naming the first such view and the balls it placed or found as fragments.
+        Naming the first such view, and the balls it placed or shares as spheres.
     """
-    weak = [
-        choice for choice in alignment.choices if choice.placed_unseen or len(choice.found_by_position) >= 2
+    reference = alignment.choices[0]
+    for choice in alignment.choices:
+        shared = [color for color in _fitted(choice) if color in _fitted(reference)]
+        if not (choice.placed_unseen or len(shared) < 2) or _within_refinement_bounds(alignment, config):
+            continue
+        what = (
+            f"the {' and '.join(choice.placed_unseen)} ball, not seen in this view, was placed where the "
+            "other views put it"
+            if choice.placed_unseen
+            else f"this view and {reference.view} both fit only the {' and '.join(shared) or 'no'} ball as a "
+            "sphere (the others were found as fragments where the other views place them)"
+        )
+        raise RegistrationFailed(
+            f"{what}, and the view's ground and trunk do not confirm that pose",
+            view=choice.view,
+            field="icp.max_rotation_found_by_position_deg",
+            hint="check with `canopy balls --preview` which sphere was taken for each ball; lay the balls "
+            "where every view sees them, in open view, and capture again",
+        )
+
+
+def _fitted(choice: BallChoice) -> list[str]:
+    """The colours of the balls a view fits as spheres: neither found as fragments where the other views
+    place them nor placed unseen."""
+    return [
+        color
+        for color in choice.chosen
+        if color not in choice.found_by_position and color not in choice.placed_unseen
     ]
-    if not weak or _within_refinement_bounds(alignment, config):
-        return
-    choice = weak[0]
-    what = (
-        f"the {' and '.join(choice.placed_unseen)} ball, not seen in this view, was placed where the other "
-        "views put it"
-        if choice.placed_unseen
-        else f"the {' and '.join(choice.found_by_position)} balls were found only as fragments where the "
-        "other views place them"
-    )
-    raise RegistrationFailed(
-        f"{what}, and the view's ground and trunk do not confirm that pose",
-        view=choice.view,
-        field="icp.max_rotation_found_by_position_deg",
-        hint="check with `canopy balls --preview` which sphere was taken for each ball; lay the balls where "
-        "every view sees them, in open view, and capture again",
-    )
 
 
 def _loose(choice: BallChoice) -> bool:

@@ -305,7 +305,7 @@ def test_a_pose_resting_on_two_fragments_fails_where_the_surfaces_do_not_confirm
     kept and W came out 12 % wide with no error. A view resting on two fragments is held by one ball it
     fits, like one with a ball placed unseen: the surfaces must confirm it, and here they do not."""
     capture = simulate_capture(tmp_path / "tree", seed=2054014, n_views=2, scenario="mixed")
-    with pytest.raises(RegistrationFailed, match="found only as fragments") as info:
+    with pytest.raises(RegistrationFailed, match="both fit only the blue ball") as info:
         measure(capture)
     assert info.value.view == "views/2"
 
