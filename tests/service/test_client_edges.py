@@ -162,8 +162,9 @@ def test_watch_prints_each_measurement_as_it_completes(service: Service, one_cap
     finally:
         watcher.send_signal(signal.SIGINT)
         watcher.communicate(timeout=60)
-    [line] = [line for line in output.lines if ": measured H " in line]
-    assert line.rstrip().endswith(" m") and " W " in line and " D " in line
+    measured = [line for line in output.lines if ": measured H " in line]
+    assert len(measured) == 1, f"one measurement printed once; the watcher said: {output.lines}"
+    assert measured[0].rstrip().endswith(" m") and " W " in measured[0] and " D " in measured[0]
 
 
 def test_a_misspelt_camera_key_is_refused_with_the_key_meant_by_upload_and_measure(
