@@ -67,8 +67,8 @@ def align_views(
     reference view, is ruled out in turn (:meth:`ViewBallCandidates.ruling_out`) and the balls chosen
     again; of the choices the surfaces agree with as closely as with a sound registration (ICP keeps its
     refinement of every view) and that rest on balls seen (none placed unseen), the one they contradict
-    least is taken. A first choice resting on a ball placed unseen, or on two fragments, must itself meet
-    that bound (:func:`_check_weakly_held`).
+    least is taken. A first choice resting on a ball placed unseen, or with a view that shares fewer than
+    two balls fitted as spheres with the reference, must itself meet that bound (:func:`_check_weakly_held`).
 
     Parameters
     ----------
@@ -151,24 +151,27 @@ def _check_weakly_held(alignment: Alignment, config: IcpConfig) -> None:
         Naming the first such view, and the balls it placed or shares as spheres.
     """
     reference = alignment.choices[0]
-    for choice in alignment.choices:
-        shared = [color for color in _fitted(choice) if color in _fitted(reference)]
-        if not (choice.placed_unseen or len(shared) < 2) or _within_refinement_bounds(alignment, config):
-            continue
-        what = (
-            f"the {' and '.join(choice.placed_unseen)} ball, not seen in this view, was placed where the "
-            "other views put it"
-            if choice.placed_unseen
-            else f"this view and {reference.view} both fit only the {' and '.join(shared) or 'no'} ball as a "
-            "sphere (the others were found as fragments where the other views place them)"
-        )
-        raise RegistrationFailed(
-            f"{what}, and the view's ground and trunk do not confirm that pose",
-            view=choice.view,
-            field="icp.max_rotation_found_by_position_deg",
-            hint="check with `canopy balls --preview` which sphere was taken for each ball; lay the balls "
-            "where every view sees them, in open view, and capture again",
-        )
+    shared = [
+        [color for color in _fitted(choice) if color in _fitted(reference)] for choice in alignment.choices
+    ]
+    weak = [i for i, choice in enumerate(alignment.choices) if choice.placed_unseen or len(shared[i]) < 2]
+    if not weak or _within_refinement_bounds(alignment, config):
+        return
+    choice = alignment.choices[weak[0]]
+    what = (
+        f"the {' and '.join(choice.placed_unseen)} ball, not seen in this view, was placed where the other "
+        "views put it"
+        if choice.placed_unseen
+        else f"this view and {reference.view} both fit only the {' and '.join(shared[weak[0]]) or 'no'} ball "
+        "as a sphere (the others were found as fragments where the other views place them)"
+    )
+    raise RegistrationFailed(
+        f"{what}, and the view's ground and trunk do not confirm that pose",
+        view=choice.view,
+        field="icp.max_rotation_found_by_position_deg",
+        hint="check with `canopy balls --preview` which sphere was taken for each ball; lay the balls where "
+        "every view sees them, in open view, and capture again",
+    )
 
 
 def _fitted(choice: BallChoice) -> list[str]:
