@@ -117,9 +117,10 @@ def align_views(
 
 
 def _within_refinement_bounds(alignment: Alignment, config: IcpConfig) -> bool:
-    """Whether the surfaces agree with these balls as closely as with a sound registration's: ICP moves no
-    view's balls or turns no view beyond what it would keep (:func:`refinement_bounds`). A choice made again
-    is one hypothesis among several, so it must meet that, not merely stay short of a certain failure
+    """Whether the surfaces confirm these balls: ICP moves no view's balls, and turns no view, in any
+    direction beyond what the balls' fits leave open (:func:`refinement_bounds`), the tilt too, which a
+    refinement of a sound choice may correct further (the ground's). A choice made again is one hypothesis
+    among several, so it must meet that, not merely stay short of a certain failure
     (:func:`check_icp_agreement`'s looser bounds): look-alikes both views see agree with each other and
     close triangles that ICP turns by 4-5 degrees."""
     loose_reference = _loose(alignment.choices[0])

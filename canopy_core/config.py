@@ -316,9 +316,23 @@ class IcpConfig(_Section):
     max_correspondence_m: float = Field(0.03, gt=0.0)
     max_iterations: int = Field(30, ge=1)
     max_ball_shift_m: float = Field(
-        0.01, gt=0.0, description="A refinement moving any ball centre farther than this is rejected."
+        0.01,
+        gt=0.0,
+        description="How far the balls' fits leave their centres open. A refinement sliding any ball centre "
+        "farther than this across the ground (horizontally) is rejected: the ground fixes the tilt and the "
+        "height, and leaves the slide to the balls. Their heights err by more (noise over the triangle, "
+        "grass or weeds under a ball) and yield to the ground up to max_disagreement_m. A choice of balls "
+        "the surfaces must confirm (one resting on fragments, or chosen again) fails when ICP moves any "
+        "ball farther in any direction.",
     )
-    max_rotation_deg: float = Field(0.5, gt=0.0, description="A refinement turning a view more is rejected.")
+    max_rotation_deg: float = Field(
+        0.5,
+        gt=0.0,
+        description="How far the balls' fits leave a view's turn open. A refinement turning the view more "
+        "than this about the vertical is rejected (the ground and the upright trunk do not hold that turn; "
+        "its tilt yields to the ground up to max_disagreement_deg). A choice of balls the surfaces must "
+        "confirm fails when ICP turns the view more about any axis.",
+    )
     max_ball_shift_found_by_position_m: float = Field(
         0.05,
         gt=0.0,

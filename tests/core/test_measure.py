@@ -66,8 +66,8 @@ def test_icp_is_reported_with_correspondence_percentiles(native_result: Measurem
     assert 0 < icp.before.fitness <= 1 and icp.before.distance_p50_m <= icp.before.distance_p90_m
     assert icp.accepted == (
         icp.after.distance_p50_m < icp.before.distance_p50_m
-        and icp.ball_shift_m <= bounds.max_ball_shift_m
-        and icp.rotation_change_deg <= bounds.max_rotation_deg
+        and icp.ball_slide_m <= bounds.max_ball_shift_m
+        and icp.yaw_change_deg <= bounds.max_rotation_deg
     ), icp.reason
 
 
