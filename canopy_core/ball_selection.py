@@ -66,7 +66,8 @@ class BallChoice:
     """The balls chosen in one view, and why each other sphere was not taken, per colour.
 
     ``rejected`` maps each colour to its rejections, likeliest sphere first: its geometry's problem, too
-    little of the colour, not resting on the ground (``floating``), taken for another colour (``taken``),
+    little of the colour, not resting on the ground (``floating``), the foot of something upright
+    (``upright``), taken for another colour (``taken``),
     not at the other views' distances (``inconsistent``) or, in one view alone, less likely than the one
     chosen (``weaker``). A view described on its own (:func:`describe_view`) may lack a colour's ball:
     ``missing`` says why.
@@ -785,7 +786,11 @@ def _shortlist(view: ViewBallCandidates, config: BallConfig, *, ground: GroundPl
     for color in config.colors:
         plausible[color], refused[color] = [], []
         for candidate in view.ranked(color, config):
-            objection = candidate.objection(color, config) or _floating(candidate, ground, config)
+            objection = (
+                candidate.objection(color, config)
+                or _floating(candidate, ground, config)
+                or _under_something(candidate, view, ground, config)
+            )
             if objection is None and len(plausible[color]) < _CANDIDATES_PER_COLOR:
                 plausible[color].append(candidate)
             else:
@@ -805,6 +810,25 @@ def _floating(candidate: BallCandidate, ground: GroundPlane | None, config: Ball
         f"a sphere {candidate.range_m:.1f} m away stands {gap_m:.2f} m above the ground, where a calibration "
         "ball rests on it (an apple in the crown?)",
         "Lay the ball on the ground, in view",
+    )
+
+
+def _under_something(
+    candidate: BallCandidate, view: ViewBallCandidates, ground: GroundPlane | None, config: BallConfig
+) -> Objection | None:
+    """Why a sphere is the foot of something upright rather than a ball lying on the ground, or None when
+    nothing stands over it (``config.max_points_over``; or no ground or points are known)."""
+    if ground is None or view.scene is None or candidate.unseen:
+        return None
+    over = view.scene.points_over(candidate.fit.center_m, ground.normal, config.radius_m)
+    if over <= config.max_points_over * candidate.expected_points:
+        return None
+    return Objection(
+        "upright",
+        f"a sphere {candidate.range_m:.1f} m away has {over} points standing right over it, where a ball of "
+        f"{candidate.expected_points:.0f} pixels lying on the ground has open air: the foot of something "
+        "upright (a post, a stake)",
+        "Lay the ball in open ground, away from posts",
     )
 
 

@@ -100,6 +100,13 @@ _SUPPORT_REACH_M = 0.05
 """Surface support looks this far beyond a guessed sphere's radius (more than the slack at any range)."""
 _OUTLINE_RADII = 1.8
 """Coverage is judged on the pixels within this many projected radii of the fitted centre."""
+_OVER_REACH_RADII = 1.3
+_OVER_LOW_RADII = 1.4
+_OVER_HIGH_RADII = 4.0
+"""What stands right over a sphere (:meth:`_Scene.points_over`): within this many radii of its vertical
+axis (a post's face lies about one radius in front of the centre fitted to its foot), from this many radii
+above its centre (clear of the ball's own top and its noise) to this many (a post's face over a ball's
+height and more; low weeds bend over a ball, they do not stand on it)."""
 _RADIUS_SPREAD = 0.05
 """Relative spread of the radius a ball is seen with about its nominal one, for ranking candidates: the
 diameter given may be a little off (a ball sold as 406 mm that Kinect v2 sees as 422 mm), and mixed pixels
@@ -115,9 +122,9 @@ class Objection:
 
     ``code`` is one word for tools and pictures: ``points``, ``radius``, ``residual``, ``coverage`` (its
     geometry is not a ball's), ``colour`` (too little of the ball's colour) here, and ``floating``,
-    ``taken``, ``inconsistent``, ``weaker``, ``missing`` (no sphere at all) from
-    :mod:`canopy_core.ball_selection`; ``message`` says it in
-    a sentence, ``hint`` what the crew can do about it.
+    ``upright``, ``taken``, ``inconsistent``, ``weaker``, ``missing`` (no sphere at all) from
+    :mod:`canopy_core.ball_selection`; ``message`` says it in a sentence, ``hint`` what the crew can do
+    about it.
     """
 
     code: str
@@ -752,6 +759,26 @@ class _Scene:
         normals = vectors[:, :, 0]
         normals *= np.where(np.einsum("ij,ij->i", normals, centre) > 0.0, -1.0, 1.0)[:, None]
         return normals, count >= _MIN_NORMAL_NEIGHBOURS
+
+    def points_over(self, centre_m: np.ndarray, up: np.ndarray, radius_m: float) -> int:
+        """How many points stand right over a sphere of ``radius_m`` at ``centre_m`` (``up`` the ground's
+        unit normal, both in this view's frame): within :data:`_OVER_REACH_RADII` radii of its vertical axis,
+        between :data:`_OVER_LOW_RADII` and :data:`_OVER_HIGH_RADII` radii above its centre, and no farther
+        from the camera than its centre. Nothing stands there over a ball on the ground; the foot of a post
+        fitted as a sphere has the post's face there (in front of the fitted centre, which lies a radius
+        behind the surface); the trunk behind a ball stands behind its centre."""
+        window = self.window(centre_m, radius_m, radii=_OVER_HIGH_RADII + 1.0)
+        offsets = self.cloud.points_m[window] - centre_m
+        height = offsets @ up
+        across = np.linalg.norm(offsets - height[:, None] * up, axis=1)
+        in_front = offsets @ (centre_m / max(float(np.linalg.norm(centre_m)), 1e-9)) <= 0.0
+        over = (
+            (across < _OVER_REACH_RADII * radius_m)
+            & (height > _OVER_LOW_RADII * radius_m)
+            & (height < _OVER_HIGH_RADII * radius_m)
+            & in_front
+        )
+        return int(np.count_nonzero(over))
 
     def window(self, centre_m: np.ndarray, radius_m: float, *, radii: float) -> np.ndarray:
         """Indices of the points whose pixels lie within ``radii`` projected radii of a sphere's centre."""

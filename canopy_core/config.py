@@ -148,6 +148,15 @@ class BallConfig(BallSet):
         description="Least fraction of the points seen through a sphere's outline that lie on it (a solid "
         "ball hides what is behind it; a sphere through unrelated surfaces does not).",
     )
+    max_points_over: float = Field(
+        1.0,
+        ge=0.0,
+        description="A calibration ball lying on the ground has open air over it. A sphere with more points "
+        "than this share of a ball's pixels there standing right over it (within 1.3 radii of its vertical "
+        "axis, 1.4 to 4 radii above its centre, on the camera's side of it) is the foot of something "
+        "upright of a ball's width and colour: a post, a stake. A surface standing there shows about twice a "
+        "ball's pixels; grass blades, a weed's leaves or the trunk behind a ball far fewer.",
+    )
     max_ground_gap_m: float = Field(
         0.25,
         gt=0.0,
