@@ -673,7 +673,7 @@ def _turned_to_cover(
     turns = np.arange(-np.radians(_WIRE_MAX_TURN_DEG), np.radians(_WIRE_MAX_TURN_DEG) + step / 2, step)
     turns = turns[np.argsort(np.abs(turns), kind="stable")]
     base = float(np.arctan2(wire.direction_xy[1], wire.direction_xy[0]))
-    near = [points[wire.distance_m(points) < 2 * _WIRE_VIEW_OFFSET_M] for points in views_m]
+    near = [points[_within_turning_reach(wire, points)] for points in views_m]
     best: tuple[int, Wire | None, list[np.ndarray]] = (0, None, [])
     for turn in turns:
         direction = np.array([np.cos(base + turn), np.sin(base + turn)])
@@ -707,6 +707,18 @@ def _turned_to_cover(
         direction_xy=along_views.direction_xy,
     )
     return refitted or along_views
+
+
+def _within_turning_reach(wire: Wire, points_m: np.ndarray) -> np.ndarray:
+    """Mask of the ``(N, 3)`` points that a view's line of ``wire`` turned about its origin by up to
+    :data:`_WIRE_MAX_TURN_DEG` in plan and in slope may hold: within twice :data:`_WIRE_VIEW_OFFSET_M` of
+    it, plus what the turn moves the line at their distance along it. A fixed reach left out the far side
+    of a wire fitted 5 degrees askew on one side of the crown (2036041: 2.4 m from the origin, 22 cm off),
+    and the turn then covered less along the right direction than along a wrong one."""
+    across, rise = wire.offsets_m(points_m)
+    along = (points_m[:, :2] - wire.origin_xy_m) @ wire.direction_xy
+    reach = 2 * _WIRE_VIEW_OFFSET_M + np.abs(along) * np.tan(np.radians(_WIRE_MAX_TURN_DEG))
+    return np.hypot(across, rise) < reach
 
 
 def _seen_at_both_walls(wire: Wire, seen_m: np.ndarray, *, roi_radius_m: float) -> bool:
