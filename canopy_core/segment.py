@@ -780,8 +780,11 @@ def _crosses_as_wire(
 
     A level line that stands free (:func:`_stands_free`, ``tolerance_m`` its thickness) crosses without
     covering as much: seen in :data:`_FIRST_WIRE_SEEN` of its chord, between sightings at least
-    :data:`_WIRE_SEEN_ALONE` of it apart. Against the sky nothing hides a wire, and dropout takes most of
-    it (2051046: a top wire 0.5 m above the crown, seen in two stretches over 63 % of its chord).
+    :data:`_WIRE_SEEN_ALONE` of it apart, or, parallel to the ``first`` wire (whose direction and slope
+    it follows: no chance line of specks does), anywhere along it. Against the sky nothing hides a wire,
+    dropout takes most of it, and above a tall crown much of it is out of every camera's view (2051046:
+    a top wire 0.5 m above the crown, seen in two stretches over 63 % of its chord; 2060057: 0.6 m above
+    it, seen by one view along 35 %).
     """
     chord = wire.chord(roi_radius_m)
     if chord is None:
@@ -796,7 +799,7 @@ def _crosses_as_wire(
     if abs(wire.slope - (0.0 if first is None else first.slope)) > max_slope:
         return False
     if (
-        np.ptp(seen) >= _WIRE_SEEN_ALONE * (end - start)
+        (first is not None or np.ptp(seen) >= _WIRE_SEEN_ALONE * (end - start))
         and seen_stretches.mean() >= _FIRST_WIRE_SEEN
         and _stands_free(wire, cells_m, roi_radius_m=roi_radius_m, tolerance_m=tolerance_m)
     ):

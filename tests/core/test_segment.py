@@ -437,3 +437,24 @@ def test_a_first_wire_fitted_askew_on_one_side_of_the_crown_is_turned_onto_its_f
 
     assert abs(np.degrees(np.arctan2(turned.direction_xy[1], turned.direction_xy[0]))) < 1.0
     assert abs(turned.offsets_m(np.array([[-1.2, 0.0, 1.9]]))[0][0]) < 0.03
+
+
+def test_a_top_wire_seen_along_a_third_of_its_chord_above_a_tall_crown_goes_with_the_trellis() -> None:
+    """Mixed seed 2060057, found on a held-out run of the accuracy benchmark: beside wires through the
+    crown, a top wire 0.6 m above it that one view shows in clumps along a third of its chord (the rest is
+    above that view's image and out of the other's). Sought parallel to the trellis, it stood free, but a
+    line in open air had to be seen between sightings half its chord apart, and the crown kept it (H
+    +0.58 m). Parallel to the wires found, standing free is enough."""
+    rng = np.random.default_rng(24)
+    tree = _tree(rng)
+    views = _two_views(rng, tree, [1.5])
+    top_z = 3.1
+    clumps = _wire_in_pieces(rng, z=top_z, starts=np.arange(-1.2, -0.2, 0.15), length_m=0.06)
+    views[0] = np.vstack([views[0], clumps])
+    assert canopy_height(_old_tree(views)) == pytest.approx(top_z, abs=0.02)
+
+    found = find_wires(views, roi_radius_m=ROI_RADIUS_M, **WIRES)
+
+    heights = sorted(wire.height_m - wire.slope * (wire.origin_xy_m @ wire.direction_xy) for wire in found)
+    assert heights == pytest.approx([1.5, top_z], abs=0.01)
+    assert canopy_height(_tree_without_wires(views)) == pytest.approx(canopy_height(tree), abs=0.02)
