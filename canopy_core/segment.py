@@ -715,10 +715,9 @@ def _within_turning_reach(wire: Wire, points_m: np.ndarray) -> np.ndarray:
     it, plus what the turn moves the line at their distance along it. A fixed reach left out the far side
     of a wire fitted 5 degrees askew on one side of the crown (2036041: 2.4 m from the origin, 22 cm off),
     and the turn then covered less along the right direction than along a wrong one."""
-    across, rise = wire.offsets_m(points_m)
     along = (points_m[:, :2] - wire.origin_xy_m) @ wire.direction_xy
     reach = 2 * _WIRE_VIEW_OFFSET_M + np.abs(along) * np.tan(np.radians(_WIRE_MAX_TURN_DEG))
-    return np.hypot(across, rise) < reach
+    return wire.distance_m(points_m) < reach
 
 
 def _seen_at_both_walls(wire: Wire, seen_m: np.ndarray, *, roi_radius_m: float) -> bool:
