@@ -202,6 +202,26 @@ def up(host: HostOpt = "127.0.0.1", port: PortOpt = 8000, data: DataOpt = None) 
         worker_process.stop()
 
 
+def _embedded_only(settings: Settings, command: str) -> Settings:
+    """``settings`` when they name the embedded default (SQLite and the blob folder); otherwise say what
+    backs up the engines they name instead, and exit."""
+    if settings.database_url is not None:
+        typer.echo(
+            f"error: canopy {command} handles the embedded SQLite database; back up PostgreSQL with pg_dump "
+            "and pg_restore, and the blobs with a copy of the data folder's blobs/ or of the bucket",
+            err=True,
+        )
+        raise typer.Exit(2)
+    if settings.s3_bucket is not None:
+        typer.echo(
+            f"error: canopy {command} handles the embedded data folder, but the blobs are in bucket "
+            f"{settings.s3_bucket}: keep them with the object store's versioning or replication",
+            err=True,
+        )
+        raise typer.Exit(2)
+    return settings
+
+
 @app.command("backup")
 def backup_command(
     destination: Annotated[Path, typer.Argument(metavar="DEST", help="Folder to write the backup into.")],
@@ -214,14 +234,7 @@ def backup_command(
     require_extra("service", "backup")
     from service.backup import BackupError, backup
 
-    settings = _settings(data)
-    if settings.database_url is not None:
-        typer.echo(
-            "error: canopy backup copies the embedded SQLite database; back up PostgreSQL with pg_dump and "
-            "the data folder's blobs/ with any file copy",
-            err=True,
-        )
-        raise typer.Exit(2)
+    settings = _embedded_only(_settings(data), "backup")
     try:
         report = backup(settings.data_dir.resolve(), destination)
     except BackupError as exc:
@@ -243,7 +256,7 @@ def restore_command(
     require_extra("service", "restore")
     from service.backup import BackupError, restore
 
-    settings = _settings(data)
+    settings = _embedded_only(_settings(data), "restore")
     try:
         report = restore(source, settings.data_dir.resolve())
     except BackupError as exc:

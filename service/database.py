@@ -13,13 +13,14 @@ from __future__ import annotations
 import threading
 from collections.abc import Callable, Iterator
 from contextlib import AbstractContextManager, contextmanager, nullcontext
+from datetime import UTC, datetime
 from typing import Any, TypeVar
 
-from sqlalchemy import Engine, create_engine, event, text
+from sqlalchemy import Engine, create_engine, event, func, select, text
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session, sessionmaker
 
-__all__ = ["Database"]
+__all__ = ["Database", "database_now"]
 
 _SQLITE_BUSY_TIMEOUT_MS = 10_000
 """How long a writer waits for another's transaction: write transactions hold no file I/O and last
@@ -109,3 +110,12 @@ class Database:
         self.read_engine.dispose()
         if self.write_engine is not self.read_engine:
             self.write_engine.dispose()
+
+
+def database_now(session: Session) -> datetime:
+    """The current time by the database's clock (PostgreSQL), or this machine's (SQLite), aware UTC."""
+    if session.get_bind().dialect.name == "postgresql":
+        now = session.scalar(select(func.clock_timestamp()))
+        assert now is not None
+        return now.astimezone(UTC)
+    return datetime.now(UTC)

@@ -8,6 +8,7 @@ from sqlalchemy.exc import SQLAlchemyError
 from service.deps import AnyKey, ContextDep, MetricsDep
 from service.errors import NotReady
 from service.metrics import CONTENT_TYPE
+from service.object_store import ObjectStoreUnavailable
 
 __all__ = ["router"]
 
@@ -22,11 +23,15 @@ def healthz() -> dict[str, str]:
 
 @router.get("/readyz")
 def readyz(context: ContextDep, _key: AnyKey) -> dict[str, str]:
-    """The database answers; 503 problem+json when it does not."""
+    """The database and the blob store answer; 503 problem+json naming the one that does not."""
     try:
         context.database.ping()
     except SQLAlchemyError as exc:
         raise NotReady(f"the database does not answer: {type(exc).__name__}") from exc
+    try:
+        context.store.ping()
+    except (OSError, ObjectStoreUnavailable) as exc:
+        raise NotReady(f"the blob store cannot take files: {exc}") from exc
     return {"status": "ready"}
 
 

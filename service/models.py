@@ -29,6 +29,7 @@ __all__ = [
     "Measurement",
     "Orchard",
     "Row",
+    "StoredBlob",
     "Tree",
     "utc_now",
     "utc_text",
@@ -255,3 +256,21 @@ class BrowserSession(Base):
     key_id: Mapped[int] = mapped_column(ForeignKey("api_keys.id", ondelete="CASCADE"), index=True)
     created_at: Mapped[datetime] = mapped_column(default=utc_now)
     expires_at: Mapped[datetime]
+
+
+class StoredBlob(Base):
+    """A blob in the object store, as the processes that store it and the garbage collector agree on it.
+
+    An object store has no rename to set a blob aside with, so the row does it: whoever stores a blob
+    renews ``committed_at`` (by the database's clock) before it writes the object and the record that
+    names it; the collector sets ``claimed_at`` before it deletes the object and drops the row after. A
+    writer that finds the blob claimed waits for the claim to end (see ``service/blob_registry.py``). Only
+    the object store uses this table; the folder store's files carry their own times.
+    """
+
+    __tablename__ = "stored_blobs"
+
+    sha256: Mapped[str] = mapped_column(String(64), primary_key=True)
+    size_bytes: Mapped[int]
+    committed_at: Mapped[datetime]
+    claimed_at: Mapped[datetime | None]

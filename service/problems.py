@@ -33,6 +33,7 @@ from service.errors import (
     TooManyRequests,
     Unauthorized,
 )
+from service.object_store import ObjectStoreUnavailable
 from service.storage import OutOfSpace
 
 __all__ = [
@@ -200,7 +201,9 @@ def _database_unavailable(request: Request, exc: Exception) -> JSONResponse:
     assert isinstance(exc, OperationalError)
     if "database or disk is full" in str(exc.orig):  # SQLite's words for ENOSPC
         store = request.app.state.context.store
-        full = OutOfSpace.measured(store.root, store.min_free_bytes, reason="the database could not grow")
+        full = OutOfSpace.measured(
+            store.spool_dir, store.min_free_bytes, reason="the database could not grow"
+        )
         return _out_of_space(request, full)
     log.warning("database unavailable: %s", exc)
     return problem(
@@ -209,6 +212,18 @@ def _database_unavailable(request: Request, exc: Exception) -> JSONResponse:
         "the database is busy or unreachable; try again shortly",
         code="database_unavailable",
         headers={"Retry-After": "2"},
+    )
+
+
+def _object_store_unavailable(_request: Request, exc: Exception) -> JSONResponse:
+    log.warning("object store unavailable: %s", exc)
+    return problem(
+        503,
+        "Object store unavailable",
+        "the object store holding the files did not answer or refused the request; nothing was stored: "
+        "try again shortly",
+        code="object_store_unavailable",
+        headers={"Retry-After": "5"},
     )
 
 
@@ -246,6 +261,7 @@ def install_problem_handlers(app: FastAPI) -> None:
     """Render every error the app can raise as problem+json."""
     app.add_exception_handler(OperationalError, _database_unavailable)
     app.add_exception_handler(OutOfSpace, _out_of_space)
+    app.add_exception_handler(ObjectStoreUnavailable, _object_store_unavailable)
     app.add_exception_handler(Exception, _unexpected)
     app.add_exception_handler(ServiceError, _service_error)
     app.add_exception_handler(CanopyError, _canopy_error)

@@ -18,7 +18,8 @@ class Settings(BaseSettings):
 
     The default is the embedded one: a SQLite file and a blob folder under ``./canopy-data``. Setting
     ``CANOPY_DATABASE_URL`` (for instance ``postgresql+psycopg://host/db``) moves the records elsewhere;
-    uploaded files and fused clouds stay under ``data_dir``.
+    setting ``CANOPY_S3_BUCKET`` moves uploaded files and fused clouds into an S3-compatible object store
+    (uploads are still spooled under ``data_dir`` while they arrive).
     """
 
     model_config = SettingsConfigDict(env_prefix="CANOPY_", frozen=True)
@@ -95,6 +96,22 @@ class Settings(BaseSettings):
         description="`canopy gc` removes a blob no record names only when it was last stored more than this "
         "long ago, seconds: the records naming a blob are written seconds after it, never an hour.",
     )
+    s3_bucket: str | None = Field(
+        None,
+        description="Keep blobs in this bucket of an S3-compatible object store instead of the folder "
+        "data_dir/blobs; credentials and region from the AWS SDK's environment (AWS_ACCESS_KEY_ID, ...).",
+    )
+    s3_prefix: str = Field("blobs/", description="Key prefix of the blobs in s3_bucket.")
+    s3_endpoint_url: str | None = Field(
+        None, description="The object store's URL (MinIO: http://host:9000); unset: AWS S3."
+    )
+    s3_attempts: int = Field(5, ge=1, description="Tries of one object-store request before it fails.")
+    blob_claim_s: float = Field(
+        60.0,
+        gt=0,
+        description="How long the garbage collector's claim on a blob in the object store lasts, seconds: "
+        "it deletes only within the first half, and a writer of the same bytes waits at most this long.",
+    )
     job_lease_s: float = Field(30.0, gt=0, description="A worker silent this long loses its job.")
     job_max_attempts: int = Field(3, ge=1, description="Attempts before a crashing job stays failed.")
     job_timeout_s: float = Field(600.0, gt=0, description="A measurement running longer is stopped.")
@@ -125,6 +142,12 @@ class Settings(BaseSettings):
     def blob_dir(self) -> Path:
         """Folder of the content-addressed store of uploaded files and fused clouds."""
         return self.data_dir.resolve() / "blobs"
+
+    @cached_property
+    def spool_dir(self) -> Path:
+        """Folder where uploads arrive before they are stored: the blob folder itself, or beside it when
+        the blobs live in an object store."""
+        return self.data_dir.resolve() / ("spool" if self.s3_bucket else "blobs")
 
     @property
     def job_heartbeat_s(self) -> float:

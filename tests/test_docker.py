@@ -21,6 +21,8 @@ from tests.service.running import CANOPY, free_port
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCKER = ROOT / "docker"
+AWS_SDK_VARIABLES = {"AWS_ACCESS_KEY_ID", "AWS_SECRET_ACCESS_KEY", "AWS_REGION"}
+"""The environment variables boto3 reads the object store's credentials and region from."""
 
 
 def _instructions() -> list[tuple[str, str]]:
@@ -70,23 +72,36 @@ def test_the_image_copies_what_exists_and_runs_as_its_own_user() -> None:
 def test_the_compose_file_names_only_images_settings_and_commands_that_exist() -> None:
     compose = _compose()
     services = compose["services"]
-    assert set(services) == {"postgres", "api", "worker"}
+    assert set(services) == {"postgres", "minio", "bucket", "api", "worker"}
     build = services["api"]["build"]
     assert (DOCKER / build["context"] / build["dockerfile"]).resolve() == (DOCKER / "Dockerfile").resolve()
     assert services["worker"]["image"] == services["api"]["image"]
     assert re.fullmatch(r"postgres:\d+(-bookworm)?", services["postgres"]["image"])
+    assert re.fullmatch(r"minio/minio:RELEASE\.\d{4}-\d\d-\d\dT\d\d-\d\d-\d\dZ", services["minio"]["image"])
+    assert services["bucket"]["image"] == services["minio"]["image"]
     fields = set(Settings.model_fields)
     for name in ("api", "worker"):
         for variable in services[name]["environment"]:
-            assert variable.startswith("CANOPY_") and variable[7:].lower() in fields, (name, variable)
-        assert set(services[name]["volumes"]) == {"blobs:/data"}
+            if variable.startswith("AWS_"):
+                assert variable in AWS_SDK_VARIABLES, (name, variable)
+            else:
+                assert variable.startswith("CANOPY_") and variable[7:].lower() in fields, (name, variable)
+        assert services[name]["volumes"] in (["spool-api:/data"], ["/data"])
     commands = [services["worker"]["command"], _exec_form(dict(_final_stage())["CMD"])]
     for argv in commands:
         assert argv[0] == "canopy"
         helped = subprocess.run([CANOPY, argv[1], "--help"], capture_output=True, text=True, timeout=60)
         assert helped.returncode == 0, (argv, helped.stderr)
-    url = services["api"]["environment"]["CANOPY_DATABASE_URL"]
+    environment = services["api"]["environment"]
+    url = environment["CANOPY_DATABASE_URL"]
     assert url.startswith("postgresql+psycopg://") and "@postgres:5432/" in url
+    assert environment["CANOPY_S3_ENDPOINT_URL"] == "http://minio:9000"
+    assert (
+        f"mc mb --ignore-existing canopy/{environment['CANOPY_S3_BUCKET']}"
+        in services["bucket"]["command"][0]
+    )
+    assert environment["AWS_ACCESS_KEY_ID"] == services["minio"]["environment"]["MINIO_ROOT_USER"]
+    assert environment["AWS_SECRET_ACCESS_KEY"] == services["minio"]["environment"]["MINIO_ROOT_PASSWORD"]
 
 
 def test_the_image_s_commands_and_health_checks_work_in_a_plain_venv(tmp_path: Path) -> None:

@@ -19,15 +19,17 @@ import threading
 import traceback
 from dataclasses import dataclass
 from multiprocessing.connection import Connection
-from pathlib import Path
 from typing import Any
 
 from canopy_core.capture import read_capture, stored_manifest
 from canopy_core.cloud_io import ply_bytes
 from canopy_core.errors import CanopyError
 from canopy_core.measure import measure
+from service.context import open_blob_store
+from service.database import Database
 from service.reports.figures import measurement_figures
-from service.storage import BlobStore, OutOfSpace
+from service.settings import Settings
+from service.storage import OutOfSpace
 
 __all__ = ["MeasurementSpec", "exit_with_worker", "run_measurement"]
 
@@ -39,8 +41,7 @@ class MeasurementSpec:
     job_id: int
     manifest: dict[str, Any]
     files: dict[str, str]
-    blob_dir: Path
-    min_free_bytes: int
+    settings: Settings
     overrides: dict[str, Any] | None
     max_pixels: int
 
@@ -69,7 +70,7 @@ def run_measurement(connection: Connection, lifeline: Connection, spec: Measurem
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
     exit_with_worker(lifeline)
-    store = BlobStore(spec.blob_dir, min_free_bytes=spec.min_free_bytes)
+    store = open_blob_store(spec.settings, Database(spec.settings.sqlalchemy_url))
 
     def read(path: str) -> bytes | None:
         digest = spec.files.get(path)

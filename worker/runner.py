@@ -152,8 +152,7 @@ class Worker:
                 job_id=lease.job_id,
                 manifest=capture.manifest,
                 files=files,
-                blob_dir=self.context.store.root,
-                min_free_bytes=self.context.store.min_free_bytes,
+                settings=self.context.settings,
                 overrides=lease.overrides,
                 max_pixels=self.context.settings.max_image_pixels,
             )

@@ -210,14 +210,22 @@ def cloud(measurement_id: ItemId, request: Request, context: ContextDep, _key: R
     not_modified = unchanged(request, etag)
     if not_modified is not None:
         return not_modified
-    path = context.store.path(record.cloud_sha256)
-    if not path.is_file():
-        raise ServiceError(f"the fused cloud of measurement {measurement_id} is missing from the blob store")
-    return FileResponse(
-        path,
+    filename = f"measurement-{measurement_id}.ply"
+    path = context.store.file_path(record.cloud_sha256)
+    if path is not None:
+        return FileResponse(
+            path, media_type="application/octet-stream", filename=filename, headers={"ETag": etag}
+        )
+    try:
+        ply = context.store.read(record.cloud_sha256)
+    except FileNotFoundError:
+        raise ServiceError(
+            f"the fused cloud of measurement {measurement_id} is missing from the blob store"
+        ) from None
+    return Response(
+        ply,
         media_type="application/octet-stream",
-        filename=f"measurement-{measurement_id}.ply",
-        headers={"ETag": etag},
+        headers={"ETag": etag, "Content-Disposition": f'attachment; filename="{filename}"'},
     )
 
 

@@ -14,15 +14,16 @@ lease has not run out. (SQLite's workers share a machine, and its clock.)
 from __future__ import annotations
 
 from dataclasses import dataclass
-from datetime import UTC, datetime, timedelta
+from datetime import datetime, timedelta
 from typing import Any
 
-from sqlalchemy import and_, func, or_, select
+from sqlalchemy import and_, or_, select
 from sqlalchemy.orm import Session
 
-from service.models import Capture, Job, Measurement, utc_now
+from service.database import database_now
+from service.models import Capture, Job, Measurement
 
-__all__ = ["Lease", "claim", "complete", "database_now", "fail", "release", "renew"]
+__all__ = ["Lease", "claim", "complete", "fail", "release", "renew"]
 
 
 @dataclass(frozen=True)
@@ -34,15 +35,6 @@ class Lease:
     owner: str
     attempt: int
     overrides: dict[str, Any] | None
-
-
-def database_now(session: Session) -> datetime:
-    """The current time by the database's clock (PostgreSQL), or this machine's (SQLite), aware UTC."""
-    if session.get_bind().dialect.name == "postgresql":
-        now = session.scalar(select(func.clock_timestamp()))
-        assert now is not None
-        return now.astimezone(UTC)
-    return utc_now()
 
 
 def _lost_error(attempts: int) -> dict[str, Any]:

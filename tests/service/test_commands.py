@@ -319,4 +319,4 @@ def test_db_upgrade_run_by_three_processes_at_once_leaves_one_current_schema(
         finally:
             database.dispose()
     assert [run.returncode for run in runs] == [0, 0, 0], outputs
-    assert {stdout.strip() for stdout, _ in outputs} == {"database at revision 0003"}
+    assert {stdout.strip() for stdout, _ in outputs} == {"database at revision 0004"}

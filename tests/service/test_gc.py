@@ -12,13 +12,13 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from service.storage import BlobStore
+from service.storage import FolderStore
 from tests.service.running import Service, upload_capture, wait_for_job
 
 DAY_S = 86_400.0
 
 
-def _age(store: BlobStore, by_s: float) -> None:
+def _age(store: FolderStore, by_s: float) -> None:
     """Make every stored blob look committed ``by_s`` ago."""
     for digest, committed in list(store.stored()):
         os.utime(store.path(digest), (committed - by_s, committed - by_s))
@@ -39,7 +39,7 @@ def _other_tree(capture: Path, into: Path) -> Path:
 def test_gc_removes_deleted_captures_and_orphans_and_keeps_every_named_blob(
     service: Service, tree_capture: Path, tmp_path: Path
 ) -> None:
-    store = BlobStore(service.data_dir / "blobs")
+    store = FolderStore(service.data_dir / "blobs")
     service.start_worker()
     with service.client() as client:
         kept_capture = upload_capture(client, tree_capture)
@@ -77,7 +77,7 @@ def test_gc_removes_deleted_captures_and_orphans_and_keeps_every_named_blob(
 
 def test_bytes_committed_again_while_the_collector_runs_are_kept(tmp_path: Path) -> None:
     (tmp_path / "blobs").mkdir()
-    store = BlobStore(tmp_path / "blobs")
+    store = FolderStore(tmp_path / "blobs")
     data = b"the depth image of a capture deleted yesterday and uploaded again today"
     digest = store.put(data)
     _age(store, DAY_S)

@@ -1,0 +1,244 @@
+"""Blobs in an S3-compatible object store (``CANOPY_S3_BUCKET``): a capture measured end to end with its
+files, cloud and figures in the bucket and none in the data folder, on SQLite and PostgreSQL; the
+collector's claims against writers of the same bytes; an object store that does not answer.
+
+The object store is moto's S3 server, a real HTTP server speaking the S3 API, in this test process (no MinIO
+binary can be installed here); the service and its worker reach it over HTTP with boto3 as they would
+MinIO or AWS. moto does not check the SHA-256 a PUT carries, which MinIO and S3 do.
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+import uuid
+from collections.abc import Iterator
+from datetime import timedelta
+from pathlib import Path
+
+import boto3
+import pytest
+from moto.server import ThreadedMotoServer
+
+from service.blob_gc import collect_garbage
+from service.blob_registry import BlobRegistry
+from service.database import Database
+from service.migrate import upgrade
+from service.models import StoredBlob
+from service.object_store import ObjectStore, s3_client
+from service.storage import sha256_hex
+from tests.service.postgres import BACKENDS, database_url
+from tests.service.running import (
+    capture_files,
+    content_digest,
+    free_port,
+    start_service,
+    upload_capture,
+    wait_for_job,
+)
+
+CREDENTIALS = {
+    "AWS_ACCESS_KEY_ID": "canopy",
+    "AWS_SECRET_ACCESS_KEY": "canopy-secret",
+    "AWS_REGION": "us-east-1",
+}
+
+
+@pytest.fixture(scope="module")
+def s3_url() -> Iterator[str]:
+    """The URL of an S3 server on this machine."""
+    port = free_port()
+    server = ThreadedMotoServer(ip_address="127.0.0.1", port=port, verbose=False)
+    server.start()
+    try:
+        yield f"http://127.0.0.1:{port}"
+    finally:
+        server.stop()
+
+
+@pytest.fixture
+def credentials(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The object store's credentials in the environment, of this process and of the services it starts."""
+    for name, value in CREDENTIALS.items():
+        monkeypatch.setenv(name, value)
+
+
+@pytest.fixture
+def bucket(s3_url: str, credentials: None) -> str:
+    """A new, empty bucket."""
+    name = f"canopy-{uuid.uuid4().hex[:12]}"
+    boto3.client("s3", endpoint_url=s3_url).create_bucket(Bucket=name)
+    return name
+
+
+def _objects(s3_url: str, bucket: str) -> dict[str, bytes]:
+    client = boto3.client("s3", endpoint_url=s3_url)
+    keys = [entry["Key"] for entry in client.list_objects_v2(Bucket=bucket).get("Contents", [])]
+    return {key: client.get_object(Bucket=bucket, Key=key)["Body"].read() for key in keys}
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_a_capture_is_measured_with_every_blob_in_the_bucket_and_collected_there(
+    backend: str, s3_url: str, bucket: str, tree_capture: Path, tmp_path: Path
+) -> None:
+    with database_url(backend) as url:
+        service = start_service(
+            tmp_path,
+            database_url=url,
+            s3_bucket=bucket,
+            s3_endpoint_url=s3_url,
+            blob_gc_grace_s="0",
+            worker_poll_s="0.1",
+        )
+        try:
+            service.start_worker()
+            with service.client() as client:
+                capture_id = upload_capture(client, tree_capture)
+                job = wait_for_job(client, client.post(f"/v1/captures/{capture_id}/jobs").headers["location"])
+                assert job["state"] == "succeeded", job
+                [(measurement_id, cloud_sha256, figures)] = service.query(
+                    "SELECT id, cloud_sha256, figures FROM measurements"
+                )
+                cloud = client.get(f"/v1/measurements/{measurement_id}/cloud.ply")
+                assert cloud.status_code == 200
+                assert sha256_hex(cloud.content) == cloud_sha256
+                assert cloud.headers["content-disposition"] == (
+                    f'attachment; filename="measurement-{measurement_id}.ply"'
+                )
+                assert client.get(f"/v1/measurements/{measurement_id}/report").status_code == 200
+
+            figures = json.loads(figures) if isinstance(figures, str) else figures
+            files = {path: digest for path, digest in service.query("SELECT path, sha256 FROM capture_files")}
+            named = {*files.values(), cloud_sha256, *figures.values()}
+            objects = _objects(s3_url, bucket)
+            assert {key.rsplit("/", 1)[1] for key in objects} == named
+            assert all(key == f"blobs/{key[6:8]}/{key[9:]}" for key in objects)
+            assert all(sha256_hex(data) == key.rsplit("/", 1)[1] for key, data in objects.items())
+            assert {digest for (digest,) in service.query("SELECT sha256 FROM stored_blobs")} == named
+            assert not (service.data_dir / "blobs").exists()
+            assert list((service.data_dir / "spool").iterdir()) == []
+
+            with service.client() as client:
+                assert client.delete(f"/v1/captures/{capture_id}").status_code == 204
+            collected = service.canopy("gc")
+            assert collected.returncode == 0, collected.stderr
+            assert f"removed {len(named)} " in collected.stdout
+            assert _objects(s3_url, bucket) == {}
+            assert service.query("SELECT sha256 FROM stored_blobs") == []
+        finally:
+            service.stop()
+
+
+@pytest.fixture(params=BACKENDS)
+def store(request: pytest.FixtureRequest, s3_url: str, bucket: str, tmp_path: Path) -> Iterator[ObjectStore]:
+    """An object store on a migrated database whose collector's claims last 2 s."""
+    with database_url(request.param) as url:
+        database = Database(url or f"sqlite:///{tmp_path / 'blobs.db'}")
+        try:
+            upgrade(database)
+            (tmp_path / "spool").mkdir()
+            yield ObjectStore(
+                s3_client(s3_url, attempts=2),
+                bucket,
+                prefix="blobs/",
+                registry=BlobRegistry(database, claim_s=2.0),
+                spool_dir=tmp_path / "spool",
+            )
+        finally:
+            database.dispose()
+
+
+def _age(store: ObjectStore, sha256: str, by_s: float) -> None:
+    """Make the blob look last committed ``by_s`` ago."""
+    with store.registry.database.writing() as session:
+        row = session.get(StoredBlob, sha256)
+        assert row is not None
+        row.committed_at -= timedelta(seconds=by_s)
+
+
+def test_bytes_committed_since_the_grace_began_are_kept_and_older_ones_go(store: ObjectStore) -> None:
+    old = store.put(b"the cloud of a capture deleted last week")
+    recent = store.put(b"stored a moment ago; its record is on its way")
+    _age(store, old, 7200)
+    since = time.time() - 3600
+    assert store.remove_unless_touched(recent, since=since) is None
+    assert store.read(recent) == b"stored a moment ago; its record is on its way"
+    assert store.remove_unless_touched(old, since=since) == len(b"the cloud of a capture deleted last week")
+    with pytest.raises(FileNotFoundError):
+        store.read(old)
+    assert {digest for digest, _ in store.stored()} == {recent}
+
+
+def test_a_writer_of_claimed_bytes_waits_for_the_delete_and_stores_them_again(store: ObjectStore) -> None:
+    data = b"the same figure, measured again"
+    digest = store.put(data)
+    _age(store, digest, 7200)
+    claim = store.registry.claim(digest, since=time.time() - 3600)
+    assert claim is not None
+    writer = threading.Thread(target=store.put, args=(data,))
+    writer.start()
+    writer.join(timeout=0.5)
+    assert writer.is_alive(), "the writer went on while a collector held a live claim on its bytes"
+    assert store.registry.holds(digest, claim)
+    store.client.delete_object(Bucket=store.bucket, Key=store.key(digest))
+    store.registry.forget(digest, claim)
+    writer.join(timeout=10)
+    assert not writer.is_alive()
+    assert store.read(digest) == data
+    assert store.remove_unless_touched(digest, since=time.time() - 3600) is None
+
+
+def test_a_collector_too_slow_to_delete_gives_up_and_its_claim_lapses(store: ObjectStore) -> None:
+    data = b"a blob whose collector stalled"
+    digest = store.put(data)
+    _age(store, digest, 7200)
+    claim = store.registry.claim(digest, since=time.time() - 3600)
+    assert claim is not None
+    assert store.registry.claim(digest, since=time.time() - 3600) is None  # one collector at a time
+    time.sleep(store.registry.claim_s / 2 + 0.2)
+    assert not store.registry.holds(digest, claim)  # past half its claim, it must not delete
+    time.sleep(store.registry.claim_s / 2)
+    started = time.monotonic()
+    store.put(data)  # the lapsed claim does not hold a writer up
+    assert time.monotonic() - started < store.registry.claim_s / 2
+    assert store.read(digest) == data
+
+
+def test_an_object_no_writer_registered_is_collected(store: ObjectStore) -> None:
+    data = b"left in the bucket by an earlier installation"
+    digest = sha256_hex(data)
+    store.client.put_object(Bucket=store.bucket, Key=store.key(digest), Body=data)
+    store.put(b"a blob stored through the register, whose record never came")
+    done = collect_garbage(store.registry.database, store, grace_s=0)
+    assert (done.blobs, done.removed) == (2, 2)  # no record names either
+    assert list(store.stored()) == []
+
+
+def test_an_object_store_that_does_not_answer_refuses_the_upload_and_stores_nothing(
+    tmp_path: Path, tree_capture: Path, credentials: None
+) -> None:
+    nowhere = f"http://127.0.0.1:{free_port()}"
+    service = start_service(tmp_path, s3_bucket="canopy-nowhere", s3_endpoint_url=nowhere, s3_attempts="1")
+    try:
+        with service.client() as client:
+            created = client.post("/v1/captures", content=(tree_capture / "capture.json").read_bytes())
+            assert created.status_code == 201, created.text
+            path, data = next(iter(capture_files(tree_capture).items()))
+            answer = client.put(
+                f"/v1/captures/{created.json()['id']}/files/{path}",
+                content=data,
+                headers={"Content-Digest": content_digest(data)},
+            )
+        assert answer.status_code == 503, answer.text
+        assert answer.headers["content-type"] == "application/problem+json"
+        assert answer.json()["code"] == "object_store_unavailable"
+        assert answer.headers["retry-after"] == "5"
+        with service.client() as client:
+            ready = client.get("/readyz")
+        assert ready.status_code == 503
+        assert "blob store" in ready.json()["detail"] and "canopy-nowhere" in ready.json()["detail"]
+        assert service.query("SELECT path FROM capture_files") == []
+        assert list((service.data_dir / "spool").iterdir()) == []
+    finally:
+        service.stop()
