@@ -17,13 +17,18 @@ import shutil
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the test harness starts the processes
 
+import boto3
+from moto.server import ThreadedMotoServer
+
 from canopy_core.simulate import simulate_captures
 from tests.service.postgres import postgres_schema
-from tests.service.running import Service, start_service, upload_capture
+from tests.service.running import Service, free_port, start_service, upload_capture
 
 
 def _queue(service: Service, captures: list[Path], jobs: int, scratch: Path) -> None:
@@ -37,10 +42,11 @@ def _queue(service: Service, captures: list[Path], jobs: int, scratch: Path) -> 
             assert client.post(f"/v1/captures/{capture_id}/jobs").status_code == 202
 
 
-def _run(workers: int, captures: list[Path], jobs: int, scratch: Path) -> float:
-    """Jobs per minute with ``workers`` workers on a queue of ``jobs``."""
+def _run(workers: int, captures: list[Path], jobs: int, scratch: Path, s3: dict[str, str]) -> float:
+    """Jobs per minute with ``workers`` workers on a queue of ``jobs``; ``s3``: the object store's settings
+    (none: the blob folder)."""
     with postgres_schema() as url:
-        service = start_service(scratch, database_url=url)
+        service = start_service(scratch, database_url=url, **s3)
         try:
             _queue(service, captures, jobs, scratch / "row")
             started = time.perf_counter()
@@ -67,15 +73,46 @@ def main() -> None:
     parser.add_argument("--jobs", type=int, default=16)
     parser.add_argument("--workers", type=int, nargs="+", default=[1, 2, 4])
     parser.add_argument("--seed", type=int, default=7)
+    parser.add_argument("--object-store", action="store_true", help="blobs in a bucket of moto's S3 server")
     options = parser.parse_args()
-    print(f"{os.cpu_count()} CPUs; {options.jobs} two-view jobs per run (worker start included)")
-    with tempfile.TemporaryDirectory(prefix="canopy-scale-bench-") as scratch:
+    where = "an S3 bucket (moto)" if options.object_store else "the blob folder"
+    print(
+        f"{os.cpu_count()} CPUs; {options.jobs} two-view jobs per run (worker start included); "
+        f"blobs in {where}"
+    )
+    with (
+        tempfile.TemporaryDirectory(prefix="canopy-scale-bench-") as scratch,
+        _object_store(options.object_store) as endpoint,
+    ):
         captures = simulate_captures(Path(scratch) / "captures", seed=options.seed, count=4)
         baseline = None
         for workers in options.workers:
-            rate = _run(workers, captures, options.jobs, Path(scratch) / f"run-{workers}")
+            s3 = {}
+            if endpoint is not None:
+                bucket = f"canopy-scale-{workers}"
+                boto3.client("s3", endpoint_url=endpoint).create_bucket(Bucket=bucket)
+                s3 = {"s3_bucket": bucket, "s3_endpoint_url": endpoint}
+            rate = _run(workers, captures, options.jobs, Path(scratch) / f"run-{workers}", s3)
             baseline = baseline or rate
             print(f"{workers} worker(s): {rate:5.1f} jobs/min  (x{rate / baseline:.2f} of the first)")
+
+
+@contextmanager
+def _object_store(wanted: bool) -> Iterator[str | None]:
+    """The URL of moto's S3 server, started for the benchmark (credentials set for every process), or None."""
+    if not wanted:
+        yield None
+        return
+    os.environ.update(
+        AWS_ACCESS_KEY_ID="canopy", AWS_SECRET_ACCESS_KEY="canopy-secret", AWS_REGION="us-east-1"
+    )
+    port = free_port()
+    server = ThreadedMotoServer(ip_address="127.0.0.1", port=port, verbose=False)
+    server.start()
+    try:
+        yield f"http://127.0.0.1:{port}"
+    finally:
+        server.stop()
 
 
 if __name__ == "__main__":
