@@ -26,6 +26,7 @@ from sqlalchemy.orm import Session
 
 from service.database import Database, database_now
 from service.models import StoredBlob
+from service.storage import check_digest
 
 __all__ = ["BlobRegistry"]
 
@@ -37,29 +38,35 @@ class BlobRegistry:
         self.database = database
         self.claim_s = claim_s
 
-    def reserve(self, sha256: str, size_bytes: int) -> None:
+    def reserve(self, sha256: str, size_bytes: int) -> bool:
         """Mark the blob as committed now, before its object is written; waits while a collector holds a
-        live claim on it (at most ``claim_s``)."""
+        live claim on it (at most ``claim_s``). True when the reservation took over a lapsed claim: its
+        collector's delete may still be on its way, so the object must be written again."""
+        check_digest(sha256)
         pause_s = self.claim_s / 100
-        while not self.database.write(lambda session: self._reserve(session, sha256, size_bytes)):
+        while (taken := self.database.write(lambda s: self._reserve(s, sha256, size_bytes))) is None:
             time.sleep(pause_s)
+        return taken
 
-    def _reserve(self, session: Session, sha256: str, size_bytes: int) -> bool:
+    def _reserve(self, session: Session, sha256: str, size_bytes: int) -> bool | None:
+        """Reserved (True: over a lapsed claim), or None while a live claim holds."""
         now = database_now(session)
         row = session.get(StoredBlob, sha256, with_for_update=True)
         if row is None:
             session.add(StoredBlob(sha256=sha256, size_bytes=size_bytes, committed_at=now))
             session.flush()
-            return True
-        if row.claimed_at is not None and row.claimed_at > now - timedelta(seconds=self.claim_s):
             return False
+        took_over = row.claimed_at is not None
+        if row.claimed_at is not None and row.claimed_at > now - timedelta(seconds=self.claim_s):
+            return None
         row.committed_at, row.claimed_at, row.size_bytes = now, None, size_bytes
-        return True
+        return took_over
 
     def claim(self, sha256: str, *, since: float) -> datetime | None:
         """Claim the blob for deletion unless it was reserved at or after ``since`` (epoch seconds) or
         another collector holds a live claim; the claim's time (its token), or None. A blob with no row
         (an object written by no writer of this database) gets one, claimed."""
+        check_digest(sha256)
         return self.database.write(lambda session: self._claim(session, sha256, since=since))
 
     def _claim(self, session: Session, sha256: str, *, since: float) -> datetime | None:

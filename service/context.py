@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 from service.blob_registry import BlobRegistry
 from service.database import Database
-from service.object_store import ObjectStore, s3_client
+from service.object_store import ObjectStore
 from service.settings import Settings
 from service.storage import BlobStore, FolderStore
 
@@ -20,11 +20,12 @@ def open_blob_store(settings: Settings, database: Database) -> BlobStore:
     if settings.s3_bucket is None:
         return FolderStore(settings.blob_dir, min_free_bytes=settings.min_free_bytes)
     return ObjectStore(
-        s3_client(settings.s3_endpoint_url, attempts=settings.s3_attempts),
+        settings.s3_endpoint_url,
         settings.s3_bucket,
         prefix=settings.s3_prefix,
         registry=BlobRegistry(database, claim_s=settings.blob_claim_s),
         spool_dir=settings.spool_dir,
+        attempts=settings.s3_attempts,
         min_free_bytes=settings.min_free_bytes,
     )
 

@@ -13,6 +13,7 @@ Credentials and region come from the environment the way every AWS SDK reads the
 from __future__ import annotations
 
 import base64
+import re
 from collections.abc import Iterator
 from contextlib import AbstractContextManager, contextmanager
 from pathlib import Path
@@ -37,30 +38,45 @@ class ObjectStoreUnavailable(Exception):
     """The object store did not answer, or refused a request: nothing was stored."""
 
 
-def s3_client(endpoint_url: str | None, *, attempts: int) -> S3Client:
-    """A client for the S3 API at ``endpoint_url`` (None: AWS itself), retrying ``attempts`` times."""
-    config = Config(retries={"max_attempts": attempts, "mode": "standard"})
+def s3_client(endpoint_url: str | None, *, attempts: int, timeout_s: float = 60.0) -> S3Client:
+    """A client for the S3 API at ``endpoint_url`` (None: AWS itself) that tries a request ``attempts``
+    times in all, each connection and each read waiting at most ``timeout_s``."""
+    config = Config(
+        retries={"total_max_attempts": attempts, "mode": "standard"},
+        connect_timeout=timeout_s,
+        read_timeout=timeout_s,
+    )
     return boto3.client("s3", endpoint_url=endpoint_url, config=config)
 
 
 class ObjectStore(BlobStore):
-    """Blobs in ``bucket`` under ``prefix``; incoming ones spooled in ``spool_dir`` (see the module)."""
+    """Blobs in ``bucket`` of the S3 API at ``endpoint_url`` under ``prefix``, each request tried
+    ``attempts`` times; incoming ones spooled in ``spool_dir`` (see the module).
+
+    Deletes and the readiness probe go through a second client that tries once and gives up within a
+    quarter of the collector's claim for connecting and as much for the answer: a delete must be over
+    before any writer may take a claimed blob over (see ``service/blob_registry.py``), and a probe must
+    answer while the prober still waits.
+    """
 
     def __init__(
         self,
-        client: S3Client,
+        endpoint_url: str | None,
         bucket: str,
         *,
         prefix: str,
         registry: BlobRegistry,
         spool_dir: Path,
+        attempts: int,
         min_free_bytes: int = 0,
     ) -> None:
         super().__init__(spool_dir, min_free_bytes=min_free_bytes)
-        self.client = client
+        self.client = s3_client(endpoint_url, attempts=attempts)
+        self._once = s3_client(endpoint_url, attempts=1, timeout_s=registry.claim_s / 4)
         self.bucket = bucket
         self.prefix = prefix
         self.registry = registry
+        self._key_pattern = re.compile(rf"{re.escape(prefix)}([0-9a-f]{{2}})/(\1[0-9a-f]{{62}})")
 
     def key(self, sha256: str) -> str:
         """The object key of the blob with this digest."""
@@ -68,10 +84,11 @@ class ObjectStore(BlobStore):
         return f"{self.prefix}{sha256[:2]}/{sha256}"
 
     def keep(self, incoming: IncomingBlob) -> None:
-        """Reserve the blob, then write it unless an object of its size is there already."""
+        """Reserve the blob, then write it unless an object of its size is there already and no collector
+        had claimed it (a claim taken over may still see its delete arrive: the bytes are written again)."""
         sha256 = incoming.sha256
-        self.registry.reserve(sha256, incoming.size_bytes)
-        if self._size(sha256) == incoming.size_bytes:
+        took_over = self.registry.reserve(sha256, incoming.size_bytes)
+        if not took_over and self._size(sha256) == incoming.size_bytes:
             return
         checksum = base64.b64encode(bytes.fromhex(sha256)).decode()
         with self._answering(f"storing blob {sha256}"), incoming.path.open("rb") as body:
@@ -107,9 +124,10 @@ class ObjectStore(BlobStore):
             )
             for page in pages:
                 for entry in page.get("Contents", []):
-                    sha256 = entry["Key"].rsplit("/", 1)[-1]
-                    if len(sha256) != 64:
+                    named = self._key_pattern.fullmatch(entry["Key"])
+                    if named is None:  # not a blob of ours (another tool's object under the prefix)
                         continue
+                    sha256 = named.group(2)
                     seen.add(sha256)
                     yield sha256, max(entry["LastModified"].timestamp(), committed.get(sha256, 0.0))
         for sha256, time_s in committed.items():
@@ -127,7 +145,7 @@ class ObjectStore(BlobStore):
             if not self.registry.holds(sha256, claim):
                 return None  # too slow: a writer may take the blob over any moment; the claim lapses
             with self._answering(f"deleting blob {sha256}"):
-                self.client.delete_object(Bucket=self.bucket, Key=self.key(sha256))
+                self._once.delete_object(Bucket=self.bucket, Key=self.key(sha256))
         self.registry.forget(sha256, claim)
         return size
 
@@ -137,7 +155,7 @@ class ObjectStore(BlobStore):
 
     def ping(self) -> None:
         with self._answering("checking the bucket"):
-            self.client.head_bucket(Bucket=self.bucket)
+            self._once.head_bucket(Bucket=self.bucket)
 
     def _size(self, sha256: str) -> int | None:
         """The size of the blob's object, or None when there is none."""
@@ -160,9 +178,7 @@ def _answering(doing: str) -> Iterator[None]:
     that says what was being done."""
     try:
         yield
-    except ClientError as exc:
-        raise ObjectStoreUnavailable(f"{doing}: {exc}") from exc
-    except BotoCoreError as exc:
+    except (ClientError, BotoCoreError) as exc:
         raise ObjectStoreUnavailable(f"{doing}: {exc}") from exc
 
 

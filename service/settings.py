@@ -105,12 +105,13 @@ class Settings(BaseSettings):
     s3_endpoint_url: str | None = Field(
         None, description="The object store's URL (MinIO: http://host:9000); unset: AWS S3."
     )
-    s3_attempts: int = Field(5, ge=1, description="Tries of one object-store request before it fails.")
+    s3_attempts: int = Field(5, ge=1, description="Tries of one object-store request in all (1: no retry).")
     blob_claim_s: float = Field(
         60.0,
         gt=0,
         description="How long the garbage collector's claim on a blob in the object store lasts, seconds: "
-        "it deletes only within the first half, and a writer of the same bytes waits at most this long.",
+        "it starts a delete only within the first half and gives each delete a quarter to connect and a "
+        "quarter to be answered; a writer of the same bytes waits at most this long.",
     )
     job_lease_s: float = Field(30.0, gt=0, description="A worker silent this long loses its job.")
     job_max_attempts: int = Field(3, ge=1, description="Attempts before a crashing job stays failed.")

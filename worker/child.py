@@ -5,7 +5,8 @@ The child reads the capture's files from the blob store, measures, stores the fu
 figures and sends its messages to the worker through a pipe: ``("progress", stage, fraction)`` while it
 runs, then one of ``("ok", document, cloud_sha256, cloud_points, figures)`` (figures: name to SHA-256),
 ``("error", error_dict)`` for a failure the measurement core explains (permanent), ``("no_space", text)``
-when the data disk had no room for the cloud or a figure (the job is handed back, not failed), or
+when the data disk had no room for the cloud or a figure and ``("store_unavailable", text)`` when the
+object store did not answer (the job is handed back, not failed, in both), or
 ``("crash", text)`` for an unexpected exception (retried).
 """
 
@@ -27,6 +28,7 @@ from canopy_core.errors import CanopyError
 from canopy_core.measure import measure
 from service.context import open_blob_store
 from service.database import Database
+from service.object_store import ObjectStoreUnavailable
 from service.reports.figures import measurement_figures
 from service.settings import Settings
 from service.storage import OutOfSpace
@@ -89,6 +91,8 @@ def run_measurement(connection: Connection, lifeline: Connection, spec: Measurem
         connection.send(("ok", document, cloud_sha256, len(result.cloud), figures))
     except OutOfSpace as exc:
         connection.send(("no_space", str(exc)))
+    except ObjectStoreUnavailable as exc:
+        connection.send(("store_unavailable", str(exc)))
     except CanopyError as exc:
         connection.send(("error", exc.to_dict()))
     except Exception:

@@ -45,8 +45,12 @@ _OUTCOME_LOG = {
     "timeout": "timed out (retried while attempts remain)",
     "stopped": "handed back to the queue (worker stopping)",
     "no_space": "handed back to the queue (the data disk is full)",
+    "store_unavailable": "handed back to the queue (the object store did not answer)",
     "lost": "abandoned (lease lost)",
 }
+_HANDED_BACK_TO_WAIT = ("no_space", "store_unavailable")
+"""Outcomes of the storage, not of the job: the job goes back to the queue, its attempt not counted, and
+the worker waits before it claims again."""
 
 
 @dataclass(frozen=True)
@@ -134,7 +138,7 @@ class Worker:
             for stage, stage_seconds in outcome.message[0].get("timings_s", {}).items():
                 self.metrics.stage_seconds.labels(stage).observe(stage_seconds)
         log.info("job %d: %s after %.2f s", lease.job_id, _OUTCOME_LOG[outcome.kind], seconds)
-        if outcome.kind == "no_space":
+        if outcome.kind in _HANDED_BACK_TO_WAIT:
             log.warning("job %d: %s", lease.job_id, *outcome.message)
             self._stopping.wait(_WAIT_S)
         return True
@@ -257,7 +261,7 @@ class Worker:
             code = "measurement_crashed" if outcome.kind == "crash" else "measurement_timeout"
             error = {"code": code, "message": outcome.message[0]}
             return fail(session, lease, error=error, retry=True, max_attempts=max_attempts)
-        if outcome.kind in ("stopped", "no_space"):
+        if outcome.kind == "stopped" or outcome.kind in _HANDED_BACK_TO_WAIT:
             return release(session, lease)
         return False
 

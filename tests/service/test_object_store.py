@@ -26,7 +26,7 @@ from service.blob_registry import BlobRegistry
 from service.database import Database
 from service.migrate import upgrade
 from service.models import StoredBlob
-from service.object_store import ObjectStore, s3_client
+from service.object_store import ObjectStore
 from service.storage import sha256_hex
 from tests.service.postgres import BACKENDS, database_url
 from tests.service.running import (
@@ -139,11 +139,12 @@ def store(request: pytest.FixtureRequest, s3_url: str, bucket: str, tmp_path: Pa
             upgrade(database)
             (tmp_path / "spool").mkdir()
             yield ObjectStore(
-                s3_client(s3_url, attempts=2),
+                s3_url,
                 bucket,
                 prefix="blobs/",
                 registry=BlobRegistry(database, claim_s=2.0),
                 spool_dir=tmp_path / "spool",
+                attempts=2,
             )
         finally:
             database.dispose()
@@ -203,6 +204,38 @@ def test_a_collector_too_slow_to_delete_gives_up_and_its_claim_lapses(store: Obj
     store.put(data)  # the lapsed claim does not hold a writer up
     assert time.monotonic() - started < store.registry.claim_s / 2
     assert store.read(digest) == data
+
+
+def test_a_writer_that_takes_over_a_lapsed_claim_writes_its_bytes_again(store: ObjectStore) -> None:
+    """A collector's claim lapsed while its delete was in flight: the object may vanish any moment, so the
+    writer that takes the blob over stores its bytes again rather than trust the object it finds."""
+    data = b"a figure whose collector stalled mid-delete"
+    digest = store.put(data)
+    _age(store, digest, 7200)
+    assert store.registry.claim(digest, since=time.time() - 3600) is not None
+    damaged = bytes(len(data))  # stands for an object the late delete is about to take away
+    store.client.put_object(Bucket=store.bucket, Key=store.key(digest), Body=damaged)
+    time.sleep(store.registry.claim_s + 0.1)
+    store.put(data)
+    assert store.read(digest) == data
+
+
+def test_objects_under_the_prefix_that_are_not_blobs_are_left_alone(store: ObjectStore) -> None:
+    digest = sha256_hex(b"not stored under its own first two digits")
+    strays = [
+        f"blobs/notes/{digest}",
+        f"blobs/{'00' if digest[:2] != '00' else '11'}/{digest}",
+        "blobs/README",
+    ]
+    for key in strays:
+        store.client.put_object(Bucket=store.bucket, Key=key, Body=b"someone else's")
+    done = collect_garbage(store.registry.database, store, grace_s=0)
+    assert (done.blobs, done.removed) == (0, 0)
+    assert sorted(_objects_of(store)) == sorted(strays)
+
+
+def _objects_of(store: ObjectStore) -> list[str]:
+    return [entry["Key"] for entry in store.client.list_objects_v2(Bucket=store.bucket).get("Contents", [])]
 
 
 def test_an_object_no_writer_registered_is_collected(store: ObjectStore) -> None:
