@@ -275,3 +275,38 @@ def test_an_object_store_that_does_not_answer_refuses_the_upload_and_stores_noth
         assert list((service.data_dir / "spool").iterdir()) == []
     finally:
         service.stop()
+
+
+def test_a_job_whose_store_goes_away_is_handed_back_and_measured_once_it_returns(
+    tree_capture: Path, tmp_path: Path, credentials: None
+) -> None:
+    """The object store stops answering after the upload: the worker cannot read the capture's files, hands
+    the job back without counting the attempt, and measures it once the store answers again."""
+    port = free_port()
+    s3_url = f"http://127.0.0.1:{port}"
+    store = ThreadedMotoServer(ip_address="127.0.0.1", port=port, verbose=False)
+    store.start()
+    bucket = f"canopy-{uuid.uuid4().hex[:12]}"
+    boto3.client("s3", endpoint_url=s3_url).create_bucket(Bucket=bucket)
+    service = start_service(tmp_path, s3_bucket=bucket, s3_endpoint_url=s3_url, s3_attempts="1")
+    try:
+        with service.client() as client:
+            capture_id = upload_capture(client, tree_capture)
+            job_url = client.post(f"/v1/captures/{capture_id}/jobs").headers["location"]
+            store.stop()  # moto keeps its buckets in this process: a restart finds them again
+            service.start_worker()
+            log = service.data_dir / "worker-0.log"
+            deadline = time.monotonic() + 60
+            while "the object store did not answer" not in (log.read_text() if log.exists() else ""):
+                assert time.monotonic() < deadline, "the worker never met the missing store"
+                time.sleep(0.2)
+            job = client.get(job_url).json()
+            assert (job["state"], job["attempts"]) == ("queued", 0), job
+            store = ThreadedMotoServer(ip_address="127.0.0.1", port=port, verbose=False)
+            store.start()
+            job = wait_for_job(client, job_url)
+        assert job["state"] == "succeeded", job
+        assert job["attempts"] == 1
+    finally:
+        service.stop()
+        store.stop()
