@@ -30,6 +30,7 @@ to the trunk nor a large part of what is in the cylinder, or when it is a speck 
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -297,6 +298,15 @@ def find_wires(
     # Every line tried counts against the search's lines.
     first: Wire | None = None
     tries = 0
+    wall_to_wall = _wall_to_wall_wire(
+        thin_pool,
+        cells,
+        roi_radius_m=roi_radius_m,
+        tolerance_m=tolerance_m,
+        max_slope=max_slope,
+        min_coverage=min_coverage,
+        sight=sight,
+    )
     for in_open_air in (False, True):
         pool = open_pool if in_open_air else thin_pool
         for _ in range(_FIRST_WIRE_TRIES):
@@ -317,14 +327,18 @@ def find_wires(
             thin_pool = pool
         if first is not None:
             break
+    # A wire seen where it enters and where it leaves the cylinder settles the trellis's direction: a first
+    # wire that runs askew of it by more than the turn could correct took in leaves at the crown's edge
+    # (2058003: 13 degrees askew, W 17 % wide). One parallel to it may be another wire of the trellis.
+    sparse_views = [view[sparse] for view, (sparse, _, _) in zip(views, line_cells, strict=True)]
+    if first is not None:
+        first = _turned_to_cover(first, sparse_views, roi_radius_m=roi_radius_m, tolerance_m=tolerance_m)
+    if wall_to_wall is not None and (first is None or _askew(first, wall_to_wall) > _WIRE_MAX_TURN_DEG):
+        first = _turned_to_cover(
+            wall_to_wall, sparse_views, roi_radius_m=roi_radius_m, tolerance_m=tolerance_m
+        )
     if first is None:
         return []
-    first = _turned_to_cover(
-        first,
-        [view[sparse] for view, (sparse, _, _) in zip(views, line_cells, strict=True)],
-        roi_radius_m=roi_radius_m,
-        tolerance_m=tolerance_m,
-    )
     wires: list[Wire] = [first]
     thin_pool, sparse_pool = masked(thin_pool, first), masked(sparse_pool, first)
     # A line of leaves through the crown, parallel to the wires, must not claim first the mixed pixels
@@ -575,10 +589,10 @@ def _best_parallel_line(
     return np.hypot(across - centre[0], rise - centre[1]) < tolerance_m
 
 
-def _parallel_stretches(pool_m: np.ndarray, parallel_to: Wire, *, tolerance_m: float) -> list[np.ndarray]:
-    """Masks over ``pool_m`` (thin-line cells) of its chains (cells joined within
-    :data:`_WIRE_NEIGHBOURHOOD_M`) that run straight and level (:func:`is_wire_piece`) over at least
-    :data:`_WIRE_STRETCH_M`, within :data:`_WIRE_STRETCH_MAX_TURN_DEG` of ``parallel_to``; longest first.
+def _straight_stretches(pool_m: np.ndarray, *, tolerance_m: float) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The chains of ``pool_m`` (thin-line cells joined within :data:`_WIRE_NEIGHBOURHOOD_M`) that run
+    straight and level (:func:`is_wire_piece`) over at least :data:`_WIRE_STRETCH_M`, longest first: each
+    one's mask over the pool and its direction in plan.
 
     A wire that the crown hides along most of its chord shows only a short stretch on either side of it:
     too little for the Hough transform to rank above the lines that leaves at the crown's edge form by
@@ -591,7 +605,7 @@ def _parallel_stretches(pool_m: np.ndarray, parallel_to: Wire, *, tolerance_m: f
         (np.ones(pairs.shape[0], dtype=np.int8), (pairs[:, 0], pairs[:, 1])), shape=(len(pool_m),) * 2
     )
     count, labels = connected_components(graph, directed=False)
-    stretches: list[tuple[float, np.ndarray]] = []
+    stretches: list[tuple[float, np.ndarray, np.ndarray]] = []
     for chain in np.flatnonzero(np.bincount(labels, minlength=count) >= 3):
         members = labels == chain
         points = pool_m[members]
@@ -599,9 +613,98 @@ def _parallel_stretches(pool_m: np.ndarray, parallel_to: Wire, *, tolerance_m: f
             continue
         plan = points[:, :2] - points[:, :2].mean(axis=0)
         direction = np.linalg.svd(plan, full_matrices=False)[2][0]
-        if abs(float(direction @ parallel_to.direction_xy)) >= np.cos(np.radians(_WIRE_STRETCH_MAX_TURN_DEG)):
-            stretches.append((float(np.ptp(plan @ direction)), members))
-    return [members for _, members in sorted(stretches, key=lambda item: -item[0])]
+        stretches.append((float(np.ptp(plan @ direction)), members, direction))
+    return [(members, direction) for _, members, direction in sorted(stretches, key=lambda item: -item[0])]
+
+
+def _parallel_stretches(pool_m: np.ndarray, parallel_to: Wire, *, tolerance_m: float) -> list[np.ndarray]:
+    """Masks over ``pool_m`` of its straight stretches (:func:`_straight_stretches`) that run within
+    :data:`_WIRE_STRETCH_MAX_TURN_DEG` of ``parallel_to``; longest first."""
+    cosine = np.cos(np.radians(_WIRE_STRETCH_MAX_TURN_DEG))
+    return [
+        members
+        for members, direction in _straight_stretches(pool_m, tolerance_m=tolerance_m)
+        if abs(float(direction @ parallel_to.direction_xy)) >= cosine
+    ]
+
+
+def _wall_to_wall_lines(
+    pool_m: np.ndarray, *, roi_radius_m: float, tolerance_m: float, max_slope: float
+) -> list[np.ndarray]:
+    """Masks over ``pool_m`` (thin-line cells) of pairs of straight stretches (:func:`_straight_stretches`)
+    that lie on one level line through the cylinder of ``roi_radius_m``, each near an end of its chord: a
+    wire through a crown seen where it enters and where it leaves, the crown hiding the rest. Each
+    stretch runs within :data:`_WIRE_STRETCH_MAX_TURN_DEG` of the line joining them, they stand at least a
+    radius apart, and their heights differ by no more than the line's slope allows. Longest pair first.
+
+    The Hough transform's best line through such a wire may take in leaves at the crown's edge with one of
+    its stretches and miss the other by tens of centimetres (2058003: 13 degrees askew, W 17 % wide).
+    """
+    stretches = _straight_stretches(pool_m, tolerance_m=tolerance_m)
+    cosine = np.cos(np.radians(_WIRE_STRETCH_MAX_TURN_DEG))
+    centres = [pool_m[members].mean(axis=0) for members, _ in stretches]
+    pairs: list[tuple[float, np.ndarray]] = []
+    for (i, (first, first_direction)), (j, (second, second_direction)) in itertools.combinations(
+        enumerate(stretches), 2
+    ):
+        joining = centres[j][:2] - centres[i][:2]
+        apart = float(np.linalg.norm(joining))
+        if apart < roi_radius_m:
+            continue
+        along = joining / apart
+        if min(abs(float(first_direction @ along)), abs(float(second_direction @ along))) < cosine:
+            continue
+        if abs(centres[j][2] - centres[i][2]) > max_slope * apart + tolerance_m:
+            continue
+        line = Wire(centres[i][:2], along, float(centres[i][2]), 0.0)
+        if _seen_at_both_walls(line, pool_m[first | second], roi_radius_m=roi_radius_m):
+            pairs.append((apart, first | second))
+    return [members for _, members in sorted(pairs, key=lambda item: -item[0])]
+
+
+def _wall_to_wall_wire(
+    pool_m: np.ndarray,
+    cells_m: np.ndarray,
+    *,
+    roi_radius_m: float,
+    tolerance_m: float,
+    max_slope: float,
+    min_coverage: float,
+    sight: _SightLines | None,
+) -> Wire | None:
+    """The wire through the first of the pool's wall-to-wall pairs of stretches (:func:`_wall_to_wall_lines`,
+    at most :data:`_FIRST_WIRE_TRIES` tried) that crosses as a wire (:func:`_crosses_as_wire`); None when
+    none does. Each view's line of a wire stands off it by that view's mixed
+    pixels, so what counts as seen is what lies within :data:`_WIRE_VIEW_OFFSET_M` of the fit (a
+    tolerance's width would keep one side)."""
+    for pair in _wall_to_wall_lines(
+        pool_m, roi_radius_m=roi_radius_m, tolerance_m=tolerance_m, max_slope=max_slope
+    )[:_FIRST_WIRE_TRIES]:
+        wire, _ = _fit_wire(
+            pool_m, pair, roi_radius_m=roi_radius_m, tolerance_m=tolerance_m, direction_xy=None
+        )
+        if wire is None:
+            continue
+        stretches = pool_m[pair]
+        seen = stretches[wire.distance_m(stretches) < _WIRE_VIEW_OFFSET_M]
+        if _crosses_as_wire(
+            wire,
+            seen,
+            cells_m,
+            roi_radius_m=roi_radius_m,
+            max_slope=max_slope,
+            min_coverage=min_coverage,
+            first=None,
+            sight=sight,
+            tolerance_m=tolerance_m,
+        ):
+            return wire
+    return None
+
+
+def _askew(wire: Wire, other: Wire) -> float:
+    """The angle in plan between two wires' lines, degrees (0-90)."""
+    return float(np.degrees(np.arccos(min(1.0, abs(float(wire.direction_xy @ other.direction_xy))))))
 
 
 def _fit_wire(
