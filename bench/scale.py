@@ -24,11 +24,11 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the test harness starts the processes
 
 import boto3
-from moto.server import ThreadedMotoServer
 
 from canopy_core.simulate import simulate_captures
 from tests.service.postgres import postgres_schema
-from tests.service.running import Service, free_port, start_service, upload_capture
+from tests.service.running import Service, start_service, upload_capture
+from tests.service.s3 import CREDENTIALS, s3_server
 
 
 def _queue(service: Service, captures: list[Path], jobs: int, scratch: Path) -> None:
@@ -103,16 +103,9 @@ def _object_store(wanted: bool) -> Iterator[str | None]:
     if not wanted:
         yield None
         return
-    os.environ.update(
-        AWS_ACCESS_KEY_ID="canopy", AWS_SECRET_ACCESS_KEY="canopy-secret", AWS_REGION="us-east-1"
-    )
-    port = free_port()
-    server = ThreadedMotoServer(ip_address="127.0.0.1", port=port, verbose=False)
-    server.start()
-    try:
-        yield f"http://127.0.0.1:{port}"
-    finally:
-        server.stop()
+    os.environ.update(CREDENTIALS)
+    with s3_server() as url:
+        yield url
 
 
 if __name__ == "__main__":

@@ -2,9 +2,9 @@
 files, cloud and figures in the bucket and none in the data folder, on SQLite and PostgreSQL; the
 collector's claims against writers of the same bytes; an object store that does not answer.
 
-The object store is moto's S3 server, a real HTTP server speaking the S3 API, in this test process (no MinIO
-binary can be installed here); the service and its worker reach it over HTTP with boto3 as they would
-MinIO or AWS. moto does not check the SHA-256 a PUT carries, which MinIO and S3 do.
+The object store is moto's S3 server (``tests/service/s3.py``); the service and its worker reach it over
+HTTP with boto3 as they would MinIO or AWS. moto does not check the SHA-256 a PUT carries, which MinIO and
+S3 do.
 """
 
 from __future__ import annotations
@@ -19,7 +19,6 @@ from pathlib import Path
 
 import boto3
 import pytest
-from moto.server import ThreadedMotoServer
 
 from service.blob_gc import collect_garbage
 from service.blob_registry import BlobRegistry
@@ -37,24 +36,14 @@ from tests.service.running import (
     upload_capture,
     wait_for_job,
 )
-
-CREDENTIALS = {
-    "AWS_ACCESS_KEY_ID": "canopy",
-    "AWS_SECRET_ACCESS_KEY": "canopy-secret",
-    "AWS_REGION": "us-east-1",
-}
+from tests.service.s3 import CREDENTIALS, s3_server
 
 
 @pytest.fixture(scope="module")
 def s3_url() -> Iterator[str]:
     """The URL of an S3 server on this machine."""
-    port = free_port()
-    server = ThreadedMotoServer(ip_address="127.0.0.1", port=port, verbose=False)
-    server.start()
-    try:
-        yield f"http://127.0.0.1:{port}"
-    finally:
-        server.stop()
+    with s3_server() as url:
+        yield url
 
 
 @pytest.fixture
@@ -283,30 +272,30 @@ def test_a_job_whose_store_goes_away_is_handed_back_and_measured_once_it_returns
     """The object store stops answering after the upload: the worker cannot read the capture's files, hands
     the job back without counting the attempt, and measures it once the store answers again."""
     port = free_port()
-    s3_url = f"http://127.0.0.1:{port}"
-    store = ThreadedMotoServer(ip_address="127.0.0.1", port=port, verbose=False)
-    store.start()
     bucket = f"canopy-{uuid.uuid4().hex[:12]}"
-    boto3.client("s3", endpoint_url=s3_url).create_bucket(Bucket=bucket)
-    service = start_service(tmp_path, s3_bucket=bucket, s3_endpoint_url=s3_url, s3_attempts="1")
+    with s3_server(port) as s3_url:
+        boto3.client("s3", endpoint_url=s3_url).create_bucket(Bucket=bucket)
+        service = start_service(tmp_path, s3_bucket=bucket, s3_endpoint_url=s3_url, s3_attempts="1")
+        try:
+            with service.client() as client:
+                capture_id = upload_capture(client, tree_capture)
+                job_url = client.post(f"/v1/captures/{capture_id}/jobs").headers["location"]
+        except BaseException:
+            service.stop()
+            raise
     try:
+        service.start_worker()
+        log = service.data_dir / "worker-0.log"
+        deadline = time.monotonic() + 60
+        while "the object store did not answer" not in (log.read_text() if log.exists() else ""):
+            assert time.monotonic() < deadline, "the worker never met the missing store"
+            time.sleep(0.2)
         with service.client() as client:
-            capture_id = upload_capture(client, tree_capture)
-            job_url = client.post(f"/v1/captures/{capture_id}/jobs").headers["location"]
-            store.stop()  # moto keeps its buckets in this process: a restart finds them again
-            service.start_worker()
-            log = service.data_dir / "worker-0.log"
-            deadline = time.monotonic() + 60
-            while "the object store did not answer" not in (log.read_text() if log.exists() else ""):
-                assert time.monotonic() < deadline, "the worker never met the missing store"
-                time.sleep(0.2)
             job = client.get(job_url).json()
             assert (job["state"], job["attempts"]) == ("queued", 0), job
-            store = ThreadedMotoServer(ip_address="127.0.0.1", port=port, verbose=False)
-            store.start()
-            job = wait_for_job(client, job_url)
+            with s3_server(port):
+                job = wait_for_job(client, job_url)
         assert job["state"] == "succeeded", job
         assert job["attempts"] == 1
     finally:
         service.stop()
-        store.stop()
