@@ -6,7 +6,6 @@ from dataclasses import dataclass
 
 from service.blob_registry import BlobRegistry
 from service.database import Database
-from service.object_store import ObjectStore
 from service.settings import Settings
 from service.storage import BlobStore, FolderStore
 
@@ -19,6 +18,10 @@ def open_blob_store(settings: Settings, database: Database) -> BlobStore:
     settings.spool_dir.mkdir(parents=True, exist_ok=True)
     if settings.s3_bucket is None:
         return FolderStore(settings.blob_dir, min_free_bytes=settings.min_free_bytes)
+    # Imported here: boto3 takes a quarter of a second to load, which every worker's forkserver would pay
+    # at start (and make a worker stopped at once wait for) when no bucket is configured.
+    from service.object_store import ObjectStore
+
     return ObjectStore(
         settings.s3_endpoint_url,
         settings.s3_bucket,

@@ -8,7 +8,7 @@ from sqlalchemy.exc import SQLAlchemyError
 from service.deps import AnyKey, ContextDep, MetricsDep
 from service.errors import NotReady
 from service.metrics import CONTENT_TYPE
-from service.object_store import ObjectStoreUnavailable
+from service.storage import ObjectStoreUnavailable
 
 __all__ = ["router"]
 

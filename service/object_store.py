@@ -24,18 +24,14 @@ from botocore.config import Config
 from botocore.exceptions import BotoCoreError, ClientError
 
 from service.blob_registry import BlobRegistry
-from service.storage import BlobStore, IncomingBlob, check_digest
+from service.storage import BlobStore, IncomingBlob, ObjectStoreUnavailable, check_digest
 
 if TYPE_CHECKING:
     from mypy_boto3_s3 import S3Client
 
-__all__ = ["ObjectStore", "ObjectStoreUnavailable", "s3_client"]
+__all__ = ["ObjectStore", "s3_client"]
 
 _MISSING = ("404", "NoSuchKey", "NotFound")
-
-
-class ObjectStoreUnavailable(Exception):
-    """The object store did not answer, or refused a request: nothing was stored."""
 
 
 def s3_client(endpoint_url: str | None, *, attempts: int, timeout_s: float = 60.0) -> S3Client:

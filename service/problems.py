@@ -33,8 +33,7 @@ from service.errors import (
     TooManyRequests,
     Unauthorized,
 )
-from service.object_store import ObjectStoreUnavailable
-from service.storage import OutOfSpace
+from service.storage import ObjectStoreUnavailable, OutOfSpace
 
 __all__ = [
     "COMPONENT_REF",

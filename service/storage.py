@@ -27,7 +27,15 @@ from contextlib import AbstractContextManager, contextmanager
 from pathlib import Path
 from types import TracebackType
 
-__all__ = ["BlobStore", "FolderStore", "IncomingBlob", "OutOfSpace", "check_digest", "sha256_hex"]
+__all__ = [
+    "BlobStore",
+    "FolderStore",
+    "IncomingBlob",
+    "ObjectStoreUnavailable",
+    "OutOfSpace",
+    "check_digest",
+    "sha256_hex",
+]
 
 _INCOMING_PREFIX = ".incoming-"
 _DOOMED_PREFIX = ".doomed-"
@@ -72,6 +80,10 @@ def _full_disk_is_out_of_space(root: Path, floor_bytes: int) -> Iterator[None]:
         if exc.errno in (errno.ENOSPC, errno.EDQUOT):
             raise OutOfSpace.measured(root, floor_bytes, reason=exc.strerror or "disk full") from exc
         raise
+
+
+class ObjectStoreUnavailable(Exception):
+    """The object store did not answer, or refused a request: nothing was stored."""
 
 
 class IncomingBlob:

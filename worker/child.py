@@ -28,12 +28,11 @@ from canopy_core.errors import CanopyError
 from canopy_core.measure import measure
 from service.context import open_blob_store
 from service.database import Database
-from service.object_store import ObjectStoreUnavailable
 from service.reports.figures import measurement_figures
 from service.settings import Settings
-from service.storage import OutOfSpace
+from service.storage import ObjectStoreUnavailable, OutOfSpace
 
-__all__ = ["MeasurementSpec", "exit_with_worker", "run_measurement"]
+__all__ = ["MeasurementSpec", "exit_with_worker", "nothing", "run_measurement"]
 
 
 @dataclass(frozen=True)
@@ -46,6 +45,10 @@ class MeasurementSpec:
     settings: Settings
     overrides: dict[str, Any] | None
     max_pixels: int
+
+
+def nothing() -> None:
+    """Does nothing: the worker starts it first, to wait until the fork server has imported this module."""
 
 
 def exit_with_worker(lifeline: Connection) -> None:

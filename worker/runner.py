@@ -26,7 +26,7 @@ from service.context import Context
 from service.jobs.queue import Lease, claim, complete, fail, release, renew
 from service.models import CaptureFile
 from service.storage import OutOfSpace
-from worker.child import MeasurementSpec, run_measurement
+from worker.child import MeasurementSpec, nothing, run_measurement
 from worker.metrics import WorkerMetrics
 
 __all__ = ["Worker"]
@@ -84,6 +84,11 @@ class Worker:
         self._processes = multiprocessing.get_context("forkserver")
         self._processes.set_forkserver_preload(["worker.child"])
         forkserver.ensure_running()  # now, so the first job does not wait for the imports
+        # Its first process starts once the imports are done: a worker that says it waits for jobs can
+        # start one at once, and one stopped at once leaves no fork server importing behind it.
+        first = self._processes.Process(target=nothing, name="forkserver-ready")
+        first.start()
+        first.join()
 
     def stop(self) -> None:
         """Finish soon: a running job is handed back to the queue, and no new job is claimed."""
