@@ -102,7 +102,7 @@ def test_a_capture_is_measured_with_every_blob_in_the_bucket_and_collected_there
             named = {*files.values(), cloud_sha256, *figures.values()}
             objects = _objects(s3_url, bucket)
             assert {key.rsplit("/", 1)[1] for key in objects} == named
-            assert all(key == f"blobs/{key[6:8]}/{key[9:]}" for key in objects)
+            assert all(key == f"blobs/{digest[:2]}/{digest}" for key in objects for digest in [key[-64:]])
             assert all(sha256_hex(data) == key.rsplit("/", 1)[1] for key, data in objects.items())
             assert {digest for (digest,) in service.query("SELECT sha256 FROM stored_blobs")} == named
             assert not (service.data_dir / "blobs").exists()
