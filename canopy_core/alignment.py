@@ -22,11 +22,18 @@ from canopy_core.balls import BallCandidate, ViewBallCandidates
 from canopy_core.config import IcpConfig, MeasureConfig
 from canopy_core.errors import MeasurementError, RegistrationFailed
 from canopy_core.filters import sparse_point_mask
-from canopy_core.ground import CAMERA_UP, GroundFrame, GroundPlane, fit_ground_frame, horizontal_distance
+from canopy_core.ground import (
+    CAMERA_UP,
+    GroundFrame,
+    GroundPlane,
+    fit_ground_frame,
+    horizontal_distance,
+    view_trunk_foot,
+)
 from canopy_core.refine import IcpRefinement, check_icp_agreement, refine_views, refinement_bounds
 from canopy_core.register import apply, register_by_balls
 
-__all__ = ["Alignment", "align_views", "balls_and_frame"]
+__all__ = ["Alignment", "align_views", "balls_and_frame", "check_trunk_agreement"]
 
 _GROUND_SAMPLE = 60_000
 """Points of all views together on which the world frame's ground is fitted."""
@@ -69,6 +76,7 @@ def align_views(
     refinement of every view) and that rest on balls seen (none placed unseen), the one they contradict
     least is taken. A first choice resting on a ball placed unseen, or with a view that shares fewer than
     two balls fitted as spheres with the reference, must itself meet that bound (:func:`_check_weakly_held`).
+    Every choice taken must also stand the views round one trunk (:func:`check_trunk_agreement`).
 
     Parameters
     ----------
@@ -90,6 +98,7 @@ def align_views(
     try:
         check_icp_agreement(_reports(first), config.icp)
         _check_weakly_held(first, config.icp)
+        check_trunk_agreement(first, clouds, grounds, config)
         return first
     except RegistrationFailed as disagreement:
         failure = disagreement
@@ -110,10 +119,66 @@ def align_views(
             # turn closes triangles the surfaces leave loose enough to pass (2051009).
             unseen = any(choice.placed_unseen for choice in again.choices)
             if not unseen and _within_refinement_bounds(again, config.icp):
+                try:
+                    check_trunk_agreement(again, clouds, grounds, config)
+                except RegistrationFailed:
+                    continue
                 agreeing.append(again)
     if not agreeing:
         raise failure
     return min(agreeing, key=lambda alignment: _disagreement(alignment, config.icp))
+
+
+def check_trunk_agreement(
+    alignment: Alignment,
+    clouds: Sequence[ViewCloud],
+    grounds: Sequence[GroundPlane | None],
+    config: MeasureConfig,
+) -> None:
+    """Refuse a registration under which the views do not stand round one trunk.
+
+    Each view finds the trunk on its own (:func:`view_trunk_foot`: the arc of bark it sees fixes the
+    circle) within ``balls.max_trunk_distance_m`` of where the world frame puts it; carried into the world
+    frame, every view's foot must lie within ``icp.max_trunk_mismatch_m`` of the reference view's. ICP
+    cannot tell this: it lines up the ground and the trunk's foot, and flat ground slides and turns freely
+    under a pose that has the trunk metres off. Three look-alikes the views took for the balls (2066007
+    weeds: each view a different set of fragments round weeds and straw, the triangles agreeing by chance)
+    registered the views 35 degrees and 4 m apart while ICP moved the balls by 13 mm, and W came out 72 %
+    wide; the two views' trunks stood 1.8 m apart in the world frame, where on 36 sound registrations of
+    mixed 2064 they stood within 4 cm but one (19 cm: suckers round the foot). A view whose trunk is not
+    found is not judged.
+
+    Raises
+    ------
+    RegistrationFailed
+        Naming the first view whose trunk stands too far from the reference's.
+    """
+    trunk_xy = np.array(alignment.ground.trunk_xy_m)
+    feet: list[tuple[str, np.ndarray]] = []
+    for choice, cloud, ground, pose in zip(
+        alignment.choices, clouds, grounds, alignment.world_from_view, strict=True
+    ):
+        if ground is None:
+            continue
+        near = apply(np.linalg.inv(pose), np.array([[*trunk_xy, 0.0]]))[0]
+        foot = view_trunk_foot(cloud.points_m, ground, near, config.balls.max_trunk_distance_m)
+        if foot is not None:
+            feet.append((choice.view, apply(pose, foot[None, :])[0, :2]))
+    if len(feet) < 2:
+        return
+    (reference, there), *others = feet
+    for view, here in others:
+        apart = float(np.linalg.norm(here - there))
+        if apart > config.icp.max_trunk_mismatch_m:
+            raise RegistrationFailed(
+                f"registered by its balls, this view sees the trunk {apart:.2f} m from where {reference} "
+                f"sees it (at most {config.icp.max_trunk_mismatch_m:.2f} m): something else of a ball's "
+                "colour was probably taken for a ball in some view",
+                view=view,
+                field="icp.max_trunk_mismatch_m",
+                hint="check with `canopy balls --preview` which sphere was taken for each ball; clear what "
+                "looks like a ball from around them, or re-lay them in open view, and capture again",
+            )
 
 
 def _within_refinement_bounds(alignment: Alignment, config: IcpConfig) -> bool:

@@ -360,6 +360,16 @@ class IcpConfig(_Section):
         "the registration fails: the balls' fits err by millimetres, a fragment's by a few centimetres; "
         "beyond, a look-alike (a sphere fitted on the trunk, an apple) was taken for a ball.",
     )
+    max_trunk_mismatch_m: float = Field(
+        0.4,
+        gt=0.0,
+        description="Registered by the balls, the trunk each view finds on its own (the circle of the arc "
+        "of bark it sees) must stand within this of the reference view's, else the registration fails. On "
+        "sound registrations they stand a few centimetres apart, up to 19 cm where suckers and weeds round "
+        "the foot pull one view's circle (twice the largest trunk radius the search takes: a view may fit "
+        "the circle of a sucker beside the trunk); a registration on look-alikes puts them metres apart "
+        "while ICP, lining up flat ground, barely moves.",
+    )
     max_disagreement_deg: float = Field(
         6.0,
         gt=0.0,

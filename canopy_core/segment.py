@@ -257,6 +257,7 @@ def find_wires(
     sparse_pool = cells[np.concatenate([sparse for sparse, _, _ in line_cells])]
     thin_pool = cells[np.concatenate([thin for _, thin, _ in line_cells])]
     open_pool = cells[np.concatenate([in_open_air for _, _, in_open_air in line_cells])]
+    sparse_views = [view[sparse] for view, (sparse, _, _) in zip(views, line_cells, strict=True)]
     max_slope = float(np.tan(np.radians(max_slope_deg)))
 
     def tried(
@@ -274,20 +275,36 @@ def find_wires(
             direction_xy=None if first is None else first.direction_xy,
             slope=first.slope if stretch and first is not None else None,
         )
-        if wire is None or not _crosses_as_wire(
-            wire,
-            pool[members],
-            cells,
-            roi_radius_m=roi_radius_m,
-            max_slope=max_slope,
-            min_coverage=min_coverage,
-            first=first,
-            sight=sight,
-            open_span_m=_WIRE_STRETCH_M if stretch else _WIRE_OPEN_SPAN_M,
-            tolerance_m=tolerance_m,
-        ):
+        if wire is None:
             return None, members
-        return wire, members
+
+        def crosses(line: Wire, seen: np.ndarray) -> bool:
+            return _crosses_as_wire(
+                line,
+                seen,
+                cells,
+                roi_radius_m=roi_radius_m,
+                max_slope=max_slope,
+                min_coverage=min_coverage,
+                first=first,
+                sight=sight,
+                open_span_m=_WIRE_STRETCH_M if stretch else _WIRE_OPEN_SPAN_M,
+                tolerance_m=tolerance_m,
+            )
+
+        if crosses(wire, pool[members]):
+            return wire, members
+        # A first wire seen thin along half its chord but fitted a few degrees askew (mixed pixels at one
+        # end) misses its own far stretch and covers too little of its chord to pass: turned to where the
+        # views' lines run, it is judged again (2066008: the top wire fitted 3.8 degrees askew covered 70 %
+        # of its chord, turned 100 %; W had come out 24 % wide with no wire found).
+        if first is not None or not _spans_half_chord(wire, pool[members], roi_radius_m=roi_radius_m):
+            return None, members
+        turned = _turned_to_cover(wire, sparse_views, roi_radius_m=roi_radius_m, tolerance_m=tolerance_m)
+        along_turned = np.hypot(*turned.offsets_m(pool)) < _WIRE_VIEW_OFFSET_M
+        if crosses(turned, pool[along_turned]):
+            return turned, along_turned
+        return None, members
 
     def masked(pool: np.ndarray, wire: Wire) -> np.ndarray:
         return pool[~wire_mask(pool, [wire], tolerance_m=tolerance_m, spread_m=spread_m)]
@@ -330,7 +347,6 @@ def find_wires(
     # A wire seen where it enters and where it leaves the cylinder settles the trellis's direction: a first
     # wire that runs askew of it by more than the turn could correct took in leaves at the crown's edge
     # (2058003: 13 degrees askew, W 17 % wide). One parallel to it may be another wire of the trellis.
-    sparse_views = [view[sparse] for view, (sparse, _, _) in zip(views, line_cells, strict=True)]
     if first is not None:
         first = _turned_to_cover(first, sparse_views, roi_radius_m=roi_radius_m, tolerance_m=tolerance_m)
     if wall_to_wall is not None and (first is None or _askew(first, wall_to_wall) > _WIRE_MAX_TURN_DEG):
@@ -848,6 +864,16 @@ def _stands_free(wire: Wire, cells_m: np.ndarray, *, roi_radius_m: float, tolera
     distance = wire.distance_m(cells_m)[(along >= chord[0]) & (along <= chord[1])]
     near = np.count_nonzero(distance < _WIRE_NEIGHBOURHOOD_M)
     return bool(near and np.count_nonzero(distance < tolerance_m) >= _FREE_STANDING_SHARE * near)
+
+
+def _spans_half_chord(wire: Wire, seen_m: np.ndarray, *, roi_radius_m: float) -> bool:
+    """Whether the ``(N, 3)`` points seen of ``wire`` spread along at least :data:`_WIRE_SEEN_ALONE` of its
+    chord through the cylinder of ``roi_radius_m``: more of a line than a crown's leaves line up along."""
+    chord = wire.chord(roi_radius_m)
+    if chord is None or seen_m.shape[0] == 0:
+        return False
+    along = (seen_m[:, :2] - wire.origin_xy_m) @ wire.direction_xy
+    return bool(np.ptp(along) >= _WIRE_SEEN_ALONE * (chord[1] - chord[0]))
 
 
 def _crosses_as_wire(
