@@ -28,6 +28,7 @@ from canopy_core.ground import (
     GroundPlane,
     fit_ground_frame,
     horizontal_distance,
+    sees_trunk_near,
     view_trunk_foot,
 )
 from canopy_core.refine import IcpRefinement, check_icp_agreement, refine_views, refinement_bounds
@@ -139,14 +140,18 @@ def check_trunk_agreement(
 
     Each view finds the trunk on its own (:func:`view_trunk_foot`: the arc of bark it sees fixes the
     circle) within ``balls.max_trunk_distance_m`` of where the world frame puts it; carried into the world
-    frame, every view's foot must lie within ``icp.max_trunk_mismatch_m`` of the reference view's. ICP
+    frame, every view's foot must lie within ``icp.max_trunk_mismatch_m`` of the reference view's, or each of
+    the two views must hold a trunk's circle that close to the other's foot (:func:`sees_trunk_near`): one
+    view's best circle may be a trellis post or a clump of suckers (2067013: 0.73 m apart on a sound
+    registration, each view holding a trunk where the other's stands). ICP
     cannot tell this: it lines up the ground and the trunk's foot, and flat ground slides and turns freely
     under a pose that has the trunk metres off. Three look-alikes the views took for the balls (2066007
     weeds: each view a different set of fragments round weeds and straw, the triangles agreeing by chance)
     registered the views 35 degrees and 4 m apart while ICP moved the balls by 13 mm, and W came out 72 %
-    wide; the two views' trunks stood 1.8 m apart in the world frame, where on 36 sound registrations of
-    mixed 2064 they stood within 4 cm but one (19 cm: suckers round the foot). A view whose trunk is not
-    found is not judged.
+    wide; the two views' trunks stood 1.8 m apart in the world frame (views/2's best circle a trellis
+    post that fell on views/1's trunk, and views/2 holding no trunk where views/1's stood), where on 36
+    sound registrations of mixed 2064 they stood within 4 cm but one (19 cm: suckers round the foot). A
+    view whose trunk is not found is not judged.
 
     Raises
     ------
@@ -154,31 +159,42 @@ def check_trunk_agreement(
         Naming the first view whose trunk stands too far from the reference's.
     """
     trunk_xy = np.array(alignment.ground.trunk_xy_m)
-    feet: list[tuple[str, np.ndarray]] = []
-    for choice, cloud, ground, pose in zip(
-        alignment.choices, clouds, grounds, alignment.world_from_view, strict=True
+    tolerance = config.icp.max_trunk_mismatch_m
+    feet: list[tuple[int, np.ndarray]] = []
+    for index, (cloud, ground, pose) in enumerate(
+        zip(clouds, grounds, alignment.world_from_view, strict=True)
     ):
         if ground is None:
             continue
         near = apply(np.linalg.inv(pose), np.array([[*trunk_xy, 0.0]]))[0]
         foot = view_trunk_foot(cloud.points_m, ground, near, config.balls.max_trunk_distance_m)
         if foot is not None:
-            feet.append((choice.view, apply(pose, foot[None, :])[0, :2]))
+            feet.append((index, apply(pose, foot[None, :])[0]))
+
+    def sees_trunk_at(index: int, foot_world_m: np.ndarray) -> bool:
+        """Whether view ``index`` holds a trunk's circle within the tolerance of another view's foot."""
+        ground = grounds[index]
+        if ground is None:
+            return False
+        in_view = apply(np.linalg.inv(alignment.world_from_view[index]), foot_world_m[None, :])[0]
+        return sees_trunk_near(clouds[index].points_m, ground, in_view, tolerance)
+
     if len(feet) < 2:
         return
     (reference, there), *others = feet
-    for view, here in others:
-        apart = float(np.linalg.norm(here - there))
-        if apart > config.icp.max_trunk_mismatch_m:
-            raise RegistrationFailed(
-                f"registered by its balls, this view sees the trunk {apart:.2f} m from where {reference} "
-                f"sees it (at most {config.icp.max_trunk_mismatch_m:.2f} m): something else of a ball's "
-                "colour was probably taken for a ball in some view",
-                view=view,
-                field="icp.max_trunk_mismatch_m",
-                hint="check with `canopy balls --preview` which sphere was taken for each ball; clear what "
-                "looks like a ball from around them, or re-lay them in open view, and capture again",
-            )
+    for index, here in others:
+        apart = float(np.linalg.norm(here[:2] - there[:2]))
+        if apart <= tolerance or (sees_trunk_at(index, there) and sees_trunk_at(reference, here)):
+            continue
+        raise RegistrationFailed(
+            f"registered by its balls, this view sees the trunk {apart:.2f} m from where "
+            f"{alignment.choices[reference].view} sees it (at most {tolerance:.2f} m), and not each where "
+            "the other does: something else of a ball's colour was probably taken for a ball in some view",
+            view=alignment.choices[index].view,
+            field="icp.max_trunk_mismatch_m",
+            hint="check with `canopy balls --preview` which sphere was taken for each ball; clear what "
+            "looks like a ball from around them, or re-lay them in open view, and capture again",
+        )
 
 
 def _within_refinement_bounds(alignment: Alignment, config: IcpConfig) -> bool:

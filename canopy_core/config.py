@@ -364,11 +364,12 @@ class IcpConfig(_Section):
         0.4,
         gt=0.0,
         description="Registered by the balls, the trunk each view finds on its own (the circle of the arc "
-        "of bark it sees) must stand within this of the reference view's, else the registration fails. On "
-        "sound registrations they stand a few centimetres apart, up to 19 cm where suckers and weeds round "
-        "the foot pull one view's circle (twice the largest trunk radius the search takes: a view may fit "
-        "the circle of a sucker beside the trunk); a registration on look-alikes puts them metres apart "
-        "while ICP, lining up flat ground, barely moves.",
+        "of bark it sees) must stand within this of the reference view's, or else each view must also hold "
+        "a trunk's circle within this of the other's (one view's best circle may be a trellis post, or "
+        "suckers beside a trunk that weeds half hide), else the registration fails. On sound registrations "
+        "the feet stand a few centimetres apart, up to 19 cm where suckers pull one view's circle (twice the "
+        "largest trunk radius the search takes); a registration on look-alikes puts them metres apart while "
+        "ICP, lining up flat ground, barely moves.",
     )
     max_disagreement_deg: float = Field(
         6.0,

@@ -25,6 +25,7 @@ __all__ = [
     "fit_ground_frame",
     "ground_height_map",
     "horizontal_distance",
+    "sees_trunk_near",
     "view_ground_plane",
     "view_trunk_foot",
 ]
@@ -346,6 +347,33 @@ def view_trunk_foot(
         return None
     centre = found[0]
     return ground.point_m + centre[0] * axis_u + centre[1] * axis_v
+
+
+def sees_trunk_near(points_m: np.ndarray, ground: GroundPlane, centre_m: np.ndarray, within_m: float) -> bool:
+    """Whether one view's points hold a trunk standing within ``within_m`` of ``centre_m`` (its camera
+    frame, horizontally): a circle of a trunk's size through its low-slice points (tried as
+    :func:`view_trunk_foot` tries them) centred there, with ``_TRUNK_MIN_POINTS`` bark points or more and
+    nothing inside (:func:`_bark_support`). A view's best circle may be a trellis post, or a clump of
+    suckers beside a trunk that weeds half hide; this asks whether it also sees a trunk where another view
+    puts one."""
+    up = ground.normal / np.linalg.norm(ground.normal)
+    height = (points_m - ground.point_m) @ up
+    low, high = _TRUNK_SLICE_M
+    in_slice = (height > low) & (height < high)
+    in_slice &= horizontal_distance(points_m, centre_m, up) < within_m + _TRUNK_RADIUS_RANGE_M[1]
+    if np.count_nonzero(in_slice) < _TRUNK_MIN_POINTS:
+        return False
+    axis_u = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 1.0, 0.0])
+    axis_u /= np.linalg.norm(axis_u)
+    axis_v = np.cross(up, axis_u)
+    offset = points_m[in_slice] - centre_m
+    xy = np.column_stack([offset @ axis_u, offset @ axis_v])
+    centres, radii = _trunk_circles(xy, np.random.default_rng(0))
+    close = np.linalg.norm(centres, axis=1) < within_m
+    return any(
+        _bark_support(xy, centre, radius) >= _TRUNK_MIN_POINTS
+        for centre, radius in zip(centres[close], radii[close], strict=True)
+    )
 
 
 def _bark_circle(xy: np.ndarray) -> tuple[np.ndarray, int] | None:
