@@ -541,7 +541,25 @@ def test_a_registration_that_leaves_the_views_round_different_trunks_fails_namin
     out 72 % wide with no error. The trunk each view finds on its own stood 1.8 m from the other's: the
     capture now fails, naming the view."""
     capture = simulate_capture(tmp_path / "tree", seed=2066007, n_views=2, scenario="weeds")
-    with pytest.raises(RegistrationFailed, match="sees the trunk .* and not each where the other does") as info:
+    with pytest.raises(
+        RegistrationFailed, match=r"sees the trunk .* and not each where the other does"
+    ) as info:
         measure(capture)
     assert info.value.field == "icp.max_trunk_mismatch_m"
     assert info.value.view == "views/2"
+
+
+def test_views_whose_best_trunk_circles_differ_register_when_each_sees_a_trunk_at_the_other_s(
+    tmp_path: Path,
+) -> None:
+    """Mixed seed 2067013, a tuning tree of the trunk agreement: on a sound registration the trunk circle
+    views/2 finds best stands 0.73 m from views/1's (one of them is not the trunk), so the first rule,
+    comparing only those, refused the true balls and a retry took a red look-alike 1.4 m off. Each view
+    holds a trunk's circle at the other's foot: the true balls are kept."""
+    capture = simulate_capture(tmp_path / "tree", seed=2067013, n_views=2, scenario="mixed")
+    truth = _truth(capture)
+    result = measure(capture)
+    for view in ("views/1", "views/2"):
+        for color in ("red", "yellow", "blue"):
+            assert _ball_error_m(result, truth, view, color) < 0.02, (view, color)
+    _assert_within_5_percent(result.merged, truth)
