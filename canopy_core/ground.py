@@ -331,22 +331,13 @@ def view_trunk_foot(
     within ``reach_m`` of ``near_m`` (a ball: the crew lays them round the trunk) that the most bark points
     lie on with nothing inside (:func:`_bark_support`). One view sees an arc of the trunk, which fixes its
     circle as well as a ring does. None when the slice holds too few points or no trunk-sized circle."""
-    up = ground.normal / np.linalg.norm(ground.normal)
-    height = (points_m - ground.point_m) @ up
-    low, high = _TRUNK_SLICE_M
-    in_slice = (height > low) & (height < high)
-    in_slice &= horizontal_distance(points_m, near_m, up) < reach_m
-    if np.count_nonzero(in_slice) < _TRUNK_MIN_POINTS:
+    xy, axes = _trunk_slice(points_m, ground, near_m, reach_m)
+    if xy.shape[0] < _TRUNK_MIN_POINTS:
         return None
-    axis_u = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 1.0, 0.0])
-    axis_u /= np.linalg.norm(axis_u)
-    axis_v = np.cross(up, axis_u)
-    offset = points_m[in_slice] - ground.point_m
-    found = _bark_circle(np.column_stack([offset @ axis_u, offset @ axis_v]))
+    found = _bark_circle(xy)
     if found is None or found[1] < _TRUNK_MIN_POINTS:
         return None
-    centre = found[0]
-    return ground.point_m + centre[0] * axis_u + centre[1] * axis_v
+    return ground.point_m + axes @ found[0]
 
 
 def sees_trunk_near(points_m: np.ndarray, ground: GroundPlane, centre_m: np.ndarray, within_m: float) -> bool:
@@ -356,24 +347,33 @@ def sees_trunk_near(points_m: np.ndarray, ground: GroundPlane, centre_m: np.ndar
     nothing inside (:func:`_bark_support`). A view's best circle may be a trellis post, or a clump of
     suckers beside a trunk that weeds half hide; this asks whether it also sees a trunk where another view
     puts one."""
-    up = ground.normal / np.linalg.norm(ground.normal)
-    height = (points_m - ground.point_m) @ up
-    low, high = _TRUNK_SLICE_M
-    in_slice = (height > low) & (height < high)
-    in_slice &= horizontal_distance(points_m, centre_m, up) < within_m + _TRUNK_RADIUS_RANGE_M[1]
-    if np.count_nonzero(in_slice) < _TRUNK_MIN_POINTS:
+    xy, axes = _trunk_slice(points_m, ground, centre_m, within_m + _TRUNK_RADIUS_RANGE_M[1])
+    if xy.shape[0] < _TRUNK_MIN_POINTS:
         return False
-    axis_u = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 1.0, 0.0])
-    axis_u /= np.linalg.norm(axis_u)
-    axis_v = np.cross(up, axis_u)
-    offset = points_m[in_slice] - centre_m
-    xy = np.column_stack([offset @ axis_u, offset @ axis_v])
+    xy -= (centre_m - ground.point_m) @ axes
     centres, radii = _trunk_circles(xy, np.random.default_rng(0))
     close = np.linalg.norm(centres, axis=1) < within_m
     return any(
         _bark_support(xy, centre, radius) >= _TRUNK_MIN_POINTS
         for centre, radius in zip(centres[close], radii[close], strict=True)
     )
+
+
+def _trunk_slice(
+    points_m: np.ndarray, ground: GroundPlane, near_m: np.ndarray, reach_m: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """One view's points of the trunk's low slice (``_TRUNK_SLICE_M`` above ``ground``) within ``reach_m``
+    of ``near_m`` horizontally, as ``(N, 2)`` coordinates on the ground plane from ``ground.point_m``, and
+    the ``(3, 2)`` axes that carry such coordinates back into the camera frame."""
+    up = ground.normal / np.linalg.norm(ground.normal)
+    height = (points_m - ground.point_m) @ up
+    low, high = _TRUNK_SLICE_M
+    in_slice = (height > low) & (height < high)
+    in_slice &= horizontal_distance(points_m, near_m, up) < reach_m
+    axis_u = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 1.0, 0.0])
+    axis_u /= np.linalg.norm(axis_u)
+    axes = np.column_stack([axis_u, np.cross(up, axis_u)])
+    return (points_m[in_slice] - ground.point_m) @ axes, axes
 
 
 def _bark_circle(xy: np.ndarray) -> tuple[np.ndarray, int] | None:
