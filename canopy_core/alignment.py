@@ -138,20 +138,19 @@ def check_trunk_agreement(
 ) -> None:
     """Refuse a registration under which the views do not stand round one trunk.
 
-    Each view finds the trunk on its own (:func:`view_trunk_foot`: the arc of bark it sees fixes the
-    circle) within ``balls.max_trunk_distance_m`` of where the world frame puts it; carried into the world
-    frame, every view's foot must lie within ``icp.max_trunk_mismatch_m`` of the reference view's, or each of
-    the two views must hold a trunk's circle that close to the other's foot (:func:`sees_trunk_near`): one
-    view's best circle may be a trellis post or a clump of suckers (2067013: 0.73 m apart on a sound
-    registration, each view holding a trunk where the other's stands). ICP
-    cannot tell this: it lines up the ground and the trunk's foot, and flat ground slides and turns freely
-    under a pose that has the trunk metres off. Three look-alikes the views took for the balls (2066007
-    weeds: each view a different set of fragments round weeds and straw, the triangles agreeing by chance)
-    registered the views 35 degrees and 4 m apart while ICP moved the balls by 13 mm, and W came out 72 %
-    wide; the two views' trunks stood 1.8 m apart in the world frame (views/2's best circle a trellis
-    post that fell on views/1's trunk, and views/2 holding no trunk where views/1's stood), where on 36
-    sound registrations of mixed 2064 they stood within 4 cm but one (19 cm: suckers round the foot). A
-    view whose trunk is not found is not judged.
+    Each view finds the trunk on its own (:func:`view_trunk_foot`: the arc of bark it sees fixes the circle)
+    within ``balls.max_trunk_distance_m`` of where the world frame puts it; carried into the world frame,
+    every view's foot must lie within ``icp.max_trunk_mismatch_m`` of the reference view's, or each of the two
+    views must hold a trunk's circle that close to the other's foot (:func:`sees_trunk_near`): one view's best
+    circle may be a trellis post or a clump of suckers (2067013: 0.73 m apart on a sound registration, each
+    view holding a trunk where the other's stands). ICP cannot tell this: it lines up the ground and the
+    trunk's foot, and flat ground slides and turns freely under a pose that has the trunk metres off. Three
+    look-alikes the views took for the balls (2066007 weeds: each view a different set of fragments round
+    weeds and straw, the triangles agreeing by chance) registered the views 35 degrees and 4 m apart while ICP
+    moved the balls by 13 mm, and W came out 72 % wide; the two views' trunks stood 1.8 m apart in the world
+    frame (views/2's best circle a trellis post that fell on views/1's trunk, and views/2 holding no trunk
+    where views/1's stood), where on 36 sound registrations of mixed 2064 they stood within 4 cm but one (19
+    cm: suckers round the foot). A view whose trunk is not found is not judged.
 
     Raises
     ------
