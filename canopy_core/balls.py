@@ -30,6 +30,7 @@ from canopy_core.config import BallConfig
 from canopy_core.errors import BallNotFound
 from canopy_core.ground import GroundPlane
 from canopy_core.spheres import SphereFit, ransac_centre, refine_sphere, sphere_coverage, sphere_inliers
+from canopy_core.voxels import occupied_voxels
 
 __all__ = [
     "BallCandidate",
@@ -268,17 +269,13 @@ class ViewBallCandidates:
         points = cloud.points_m[of_color]
         if points.shape[0] == 0:
             return []
-        _, cell, counts = np.unique(
-            np.floor(points / config.diameter_m).astype(np.int64),
-            axis=0,
-            return_inverse=True,
-            return_counts=True,
-        )
+        voxels = occupied_voxels(points, config.diameter_m)
+        cell, counts = voxels.of_point, voxels.counts
         guesses = []
         for fullest in np.argsort(-counts, kind="stable")[:_MAX_PEAKS]:
             if counts[fullest] < config.min_points / 2:
                 break
-            mean = points[cell.ravel() == fullest].mean(axis=0)
+            mean = points[cell == fullest].mean(axis=0)
             guesses.append(mean * (1.0 + config.radius_m / max(float(np.linalg.norm(mean)), 1e-9)))
         return guesses
 

@@ -24,6 +24,7 @@ from scipy.spatial import ConvexHull, QhullError, cKDTree
 from canopy_core.config import MetricsConfig
 from canopy_core.errors import MeasurementError
 from canopy_core.segment import is_wire_piece
+from canopy_core.voxels import occupied_voxels
 
 __all__ = [
     "CanopyMetrics",
@@ -394,9 +395,8 @@ def _reachable(graph: csr_matrix, start: int) -> np.ndarray:
 
 def _voxels(points_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The occupied voxels' integer coordinates ``(M, 3)`` and each point's voxel."""
-    keys = np.floor(points_m / _CROWN_VOXEL_M).astype(np.int64)
-    cells, voxel = np.unique(keys - keys.min(axis=0), axis=0, return_inverse=True)
-    return cells, voxel.ravel()
+    voxels = occupied_voxels(points_m, _CROWN_VOXEL_M)
+    return voxels.cells - voxels.cells.min(axis=0), voxels.of_point
 
 
 def _bodies(points_m: np.ndarray, *, link_m: float) -> tuple[np.ndarray, np.ndarray]:
@@ -462,8 +462,7 @@ def hull_volume(points_m: np.ndarray) -> float:
 
 def voxel_volume(points_m: np.ndarray, *, voxel_m: float) -> float:
     """Volume of the voxels of edge ``voxel_m`` that hold at least one point, m³."""
-    cells = np.unique(np.floor(points_m / voxel_m).astype(np.int64), axis=0)
-    return float(cells.shape[0] * voxel_m**3)
+    return float(occupied_voxels(points_m, voxel_m).cells.shape[0] * voxel_m**3)
 
 
 def canopy_metrics(

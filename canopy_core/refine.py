@@ -30,6 +30,7 @@ from scipy.spatial.transform import Rotation
 from canopy_core.config import IcpConfig
 from canopy_core.errors import RegistrationFailed
 from canopy_core.register import apply, pose_change
+from canopy_core.voxels import occupied_voxels
 
 __all__ = [
     "AlignmentQuality",
@@ -117,12 +118,9 @@ def _closer(after: AlignmentQuality, before: AlignmentQuality) -> bool:
 def _thinned(points_m: np.ndarray, voxel_m: float) -> tuple[np.ndarray, np.ndarray]:
     """Voxel-thinned points (each voxel's mean) and their unit normals (least-variance direction of the
     ``_NORMAL_NEIGHBOURS`` nearest thinned points)."""
-    _, cell, counts = np.unique(
-        np.floor(points_m / voxel_m).astype(np.int64), axis=0, return_inverse=True, return_counts=True
-    )
-    cell = cell.ravel()
-    sums = np.column_stack([np.bincount(cell, weights=points_m[:, axis]) for axis in range(3)])
-    thinned = sums / counts[:, None]
+    voxels = occupied_voxels(points_m, voxel_m)
+    sums = np.column_stack([np.bincount(voxels.of_point, weights=points_m[:, axis]) for axis in range(3)])
+    thinned = sums / voxels.counts[:, None]
     neighbours = min(_NORMAL_NEIGHBOURS, thinned.shape[0])
     _, index = cKDTree(thinned).query(thinned, k=neighbours, workers=-1)
     local = thinned[index.reshape(thinned.shape[0], neighbours)]

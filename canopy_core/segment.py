@@ -39,6 +39,8 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from canopy_core.voxels import occupied_voxels
+
 __all__ = ["Wire", "find_wires", "is_wire_piece", "tree_component", "wire_mask"]
 
 _TRUNK_SEED_RADIUS_M = 0.35
@@ -181,7 +183,8 @@ def tree_component(
     """
     if points_m.shape[0] == 0:
         return np.zeros(0, dtype=bool)
-    cells, point_cell = np.unique(np.floor(points_m / voxel_m).astype(np.int64), axis=0, return_inverse=True)
+    voxels = occupied_voxels(points_m, voxel_m)
+    cells, point_cell = voxels.cells, voxels.of_point
     centres = (cells + 0.5) * voxel_m
     pairs = cKDTree(centres).query_pairs(r=link_m, output_type="ndarray")
     graph = coo_matrix(
