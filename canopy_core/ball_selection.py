@@ -284,12 +284,15 @@ def select_balls(
         else ()
     )
     ups = [CAMERA_UP if ground is None else ground.normal for ground in grounds]
-    chosen = None if searches or not all(per_view) else _consistent_choice(per_view, ups, config)
+    placed: set[int] = set()  # ids of the spheres sought where other views' balls put them
+    chosen = None if searches or not all(per_view) else _consistent_choice(per_view, ups, placed, config)
     for search in searches:
         found = search(views, shortlists, per_view, grounds, config)
         rescued = [before + more for before, more in zip(rescued, found, strict=True)]
+        if search is not _search_by_pair:  # which finds a ball where two views' own fragments meet
+            placed.update(id(candidate) for more in found for candidate in more)
         per_view = [_assignments(shortlist, config) for shortlist in shortlists]
-        chosen = _consistent_choice(per_view, ups, config) if all(per_view) else None
+        chosen = _consistent_choice(per_view, ups, placed, config) if all(per_view) else None
         if chosen is not None:
             break
     for view, shortlist, triangles in zip(views, shortlists, per_view, strict=True):
@@ -889,17 +892,26 @@ def _assignments(shortlist: _Shortlist, config: BallConfig) -> list[tuple[float,
 
 
 def _consistent_choice(
-    per_view: list[list[tuple[float, tuple[BallCandidate, ...]]]], ups: list[np.ndarray], config: BallConfig
+    per_view: list[list[tuple[float, tuple[BallCandidate, ...]]]],
+    ups: list[np.ndarray],
+    placed: set[int],
+    config: BallConfig,
 ) -> list[tuple[BallCandidate, ...]] | None:
     """The combination per view, one for every view, whose distances agree with the first view's, that
     turns the same way seen from above (``ups``: each view's up, its ground's normal), that shares at least
     two balls both views show with it (a ball placed unseen in one view and another in the other would
-    leave one shared ball and the views' turn about it open), and whose total score is highest; None when
-    there is none.
+    leave one shared ball and the views' turn about it open), in which every ball is found by some view's
+    own detection (not only among ``placed``, the ids of the spheres sought where other views' balls put
+    them), and whose total score is highest; None when there is none.
 
     Distances alone allow a mirror image: a look-alike where the ball would lie mirrored across the line
     through the other two (where the circles round the other two meet a second time) makes a
-    triangle of the same sides, and registering it turns the view upside down."""
+    triangle of the same sides, and registering it turns the view upside down. And placements alone make
+    a triangle agree by construction: look-alikes in one view place a ball in the other, where a fragment
+    of clutter is found, while that view's look-alikes place the first view's ball (2036042: the yellow
+    ball taken from fragments of clutter 1 m off in both views, one found where views/2's triangle put it,
+    the other where the trunk and the blue ball did; views/2 turned 48 degrees about the trunk, which the
+    trunk's agreement cannot see, and H came out 37 % high)."""
     best: tuple[float, list[tuple[BallCandidate, ...]]] | None = None
     for reference_score, reference in per_view[0]:
         total, chosen = reference_score, [reference]
@@ -920,7 +932,11 @@ def _consistent_choice(
             total += match[0]
             chosen.append(match[1])
         else:
-            if best is None or total > best[0]:
+            found_by_some_view = all(
+                any(id(triangle[ball]) not in placed and not triangle[ball].unseen for triangle in chosen)
+                for ball in range(len(reference))
+            )
+            if found_by_some_view and (best is None or total > best[0]):
                 best = (total, chosen)
     return None if best is None else best[1]
 
