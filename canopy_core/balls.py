@@ -752,7 +752,7 @@ class _Scene:
         weights = used[:, :, None].astype(np.float64)
         mean = (points * weights).sum(axis=1) / np.maximum(count, 1)[:, None]
         centred = (points - mean[:, None, :]) * weights
-        _, vectors = np.linalg.eigh(np.einsum("nki,nkj->nij", centred, centred))
+        _, vectors = np.linalg.eigh(centred.transpose(0, 2, 1) @ centred)  # each neighbourhood's scatter
         normals = vectors[:, :, 0]
         normals *= np.where(np.einsum("ij,ij->i", normals, centre) > 0.0, -1.0, 1.0)[:, None]
         return normals, count >= _MIN_NORMAL_NEIGHBOURS

@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
-__all__ = ["reliable_depth_mask", "sparse_point_mask"]
+__all__ = ["reliable_depth_mask", "sparse_point_mask", "with_neighbours"]
 
 
 def reliable_depth_mask(
@@ -89,9 +89,19 @@ def sparse_point_mask(
     if points_m.shape[0] == 0:
         return np.zeros(0, dtype=bool)
     radius = np.maximum(radius_px * range_m / focal_px, 1e-3)
-    if points_m.shape[0] <= min_neighbors:
-        return np.zeros(points_m.shape[0], dtype=bool)
-    # The point itself is its own nearest: it has enough neighbours when its (min_neighbors + 1)-th nearest
-    # lies within its radius. Asking for that one distance costs half of counting every point in reach.
-    distances, _ = cKDTree(points_m).query(points_m, k=[min_neighbors + 1], workers=-1)
-    return distances[:, 0] <= radius
+    return with_neighbours(cKDTree(points_m), points_m, count=min_neighbors, radius_m=radius)
+
+
+def with_neighbours(
+    tree: cKDTree, points_m: np.ndarray, *, count: int, radius_m: float | np.ndarray
+) -> np.ndarray:
+    """Mask of ``points_m``, each one of ``tree``'s points, that have at least ``count`` others of the
+    tree within ``radius_m`` (one radius, or one per point).
+
+    The point itself is its own nearest, so it has them when its (count + 1)-th nearest lies within its
+    radius: asking for that one distance costs half of counting every point in reach.
+    """
+    if points_m.shape[0] == 0:
+        return np.zeros(0, dtype=bool)
+    distances, _ = tree.query(points_m, k=[count + 1], workers=-1)
+    return distances[:, 0] <= radius_m

@@ -23,6 +23,7 @@ from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from canopy_core.config import MetricsConfig
 from canopy_core.errors import MeasurementError
+from canopy_core.filters import with_neighbours
 from canopy_core.segment import is_wire_piece
 from canopy_core.voxels import occupied_voxels
 
@@ -49,8 +50,10 @@ __all__ = [
     "widest_pair",
 ]
 
-_TOP_BATCH = 256
-"""Candidates for the robust top are checked this many at a time, highest first."""
+_SUPPORT_BATCH = 256
+"""Candidates for the crown's robust top and base are checked this many at a time, from the extreme inward:
+the first batch nearly always holds the answer, where counting every point's neighbours would cost tens of
+milliseconds."""
 _CROWN_VOXEL_M = 0.04
 """Voxel edge of the crown's grouping into bodies: well below the link distance, so that gaps are measured
 to a few centimetres; coarse enough that grouping a tree's tens of thousands of points is fast."""
@@ -111,13 +114,22 @@ def highest_supported(points_m: np.ndarray, *, support_radius_m: float, support_
     """Index of the highest point with at least ``support_points`` other points within
     ``support_radius_m``: a lone insect, dust speck or flying pixel above the crown is not the top. The
     highest point when none has that support."""
-    z = points_m[:, 2]
-    order = np.argsort(-z)
-    tree = cKDTree(points_m)
-    for start in range(0, order.size, _TOP_BATCH):
-        batch = order[start : start + _TOP_BATCH]
-        neighbours = tree.query_ball_point(points_m[batch], r=support_radius_m, return_length=True) - 1
-        supported = np.flatnonzero(neighbours >= support_points)
+    order = np.argsort(-points_m[:, 2])
+    return _first_supported(
+        cKDTree(points_m), points_m, order, support_radius_m=support_radius_m, support_points=support_points
+    )
+
+
+def _first_supported(
+    tree: cKDTree, points_m: np.ndarray, order: np.ndarray, *, support_radius_m: float, support_points: int
+) -> int:
+    """The first index of ``order`` (into ``points_m``, the points of ``tree``) whose point has at least
+    ``support_points`` others within ``support_radius_m``; ``order[0]`` when none has."""
+    for start in range(0, order.size, _SUPPORT_BATCH):
+        batch = order[start : start + _SUPPORT_BATCH]
+        supported = np.flatnonzero(
+            with_neighbours(tree, points_m[batch], count=support_points, radius_m=support_radius_m)
+        )
         if supported.size:
             return int(batch[supported[0]])
     return int(order[0])
@@ -172,10 +184,10 @@ def supported_hull(
         while True:
             hull = _hull_vertices(xy[alive])
             indices = np.flatnonzero(alive)[hull]
-            counts = (
-                neighbours.query_ball_point(points_m[indices], r=support_radius_m, return_length=True) - 1
+            supported = with_neighbours(
+                neighbours, points_m[indices], count=support_points, radius_m=support_radius_m
             )
-            stray = indices[counts < support_points]
+            stray = indices[~supported]
             if stray.size == 0 or np.count_nonzero(alive) - stray.size < 3:
                 break
             alive[stray] = False
@@ -432,10 +444,14 @@ def lowest_crown_point(
         return int(np.argmin(points_m[:, 2]))
     candidates = points_m[members]
     order = np.argsort(candidates[:, 2])[:5000]
-    tree = cKDTree(candidates)
-    neighbours = tree.query_ball_point(candidates[order], r=support_radius_m, return_length=True) - 1
-    supported = np.flatnonzero(neighbours >= support_points)
-    return int(members[order[supported[0]] if supported.size else order[0]])
+    lowest = _first_supported(
+        cKDTree(candidates),
+        candidates,
+        order,
+        support_radius_m=support_radius_m,
+        support_points=support_points,
+    )
+    return int(members[lowest])
 
 
 def crown_diameters(points_m: np.ndarray) -> tuple[float, float]:

@@ -125,7 +125,7 @@ def _thinned(points_m: np.ndarray, voxel_m: float) -> tuple[np.ndarray, np.ndarr
     _, index = cKDTree(thinned).query(thinned, k=neighbours, workers=-1)
     local = thinned[index.reshape(thinned.shape[0], neighbours)]
     local -= local.mean(axis=1, keepdims=True)
-    _, vectors = np.linalg.eigh(np.einsum("nki,nkj->nij", local, local))
+    _, vectors = np.linalg.eigh(local.transpose(0, 2, 1) @ local)  # each neighbourhood's scatter
     return thinned, vectors[:, :, 0]
 
 

@@ -475,7 +475,11 @@ class _SightLines:
             steps = np.arange(_SIGHT_STEP_M, float(lengths.max()), _SIGHT_STEP_M)
             inside = steps[None, :] < (lengths - _SIGHT_CLEARANCE_M)[:, None]
             samples = camera + (steps[None, :, None] / lengths[:, None, None]) * rays[:, None, :]
-            near = tree.query_ball_point(samples[inside], r=_SIGHT_RADIUS_M, return_length=True) > 0
+            # The nearest point alone tells whether any lies within reach: a bounded search stops early.
+            nearest, _ = tree.query(
+                samples[inside], distance_upper_bound=np.nextafter(_SIGHT_RADIUS_M, np.inf), workers=-1
+            )
+            near = nearest <= _SIGHT_RADIUS_M
             blocked = np.zeros(inside.shape, dtype=bool)
             blocked[inside] = near
             hidden &= blocked.any(axis=1)
@@ -565,16 +569,18 @@ def _best_line(pool_m: np.ndarray, *, tolerance_m: float, roi_radius_m: float) -
         ]
     ).reshape(3, -1)
     stretch = np.floor(along / _WIRE_BIN_M).astype(np.int64).ravel()
-    keys, line_of_key = np.unique(
-        np.ravel_multi_index(tuple(line - line.min(axis=1, keepdims=True)), tuple(np.ptp(line, axis=1) + 1)),
-        return_inverse=True,
+    line_key = np.ravel_multi_index(
+        tuple(line - line.min(axis=1, keepdims=True)), tuple(np.ptp(line, axis=1) + 1)
     )
-    covered = np.unique(line_of_key.ravel() * (int(np.ptp(stretch)) + 1) + stretch - stretch.min())
-    score = np.bincount(covered // (int(np.ptp(stretch)) + 1), minlength=keys.size)
+    stretches = int(np.ptp(stretch)) + 1
+    # The stretches each line covers, as one sorted list of (line, stretch) keys: each line's in a run.
+    covered_lines = np.unique(line_key * stretches + stretch - stretch.min()) // stretches
+    starts = np.flatnonzero(np.diff(covered_lines, prepend=-1))
+    score = np.diff(starts, append=covered_lines.size)
     best = int(np.argmax(score))
     if score[best] * _WIRE_BIN_M < _WIRE_OPEN_SPAN_M:
         return None
-    chosen = np.flatnonzero(line_of_key.ravel() == best)
+    chosen = np.flatnonzero(line_key == covered_lines[starts[best]])
     angle = int(chosen[0] % angles.size)
     points = chosen // angles.size
     direction = np.append(directions[angle], 0.0)
