@@ -29,6 +29,7 @@ from canopy_core.backproject import ViewCloud
 from canopy_core.config import BallConfig
 from canopy_core.errors import BallNotFound
 from canopy_core.ground import GroundPlane
+from canopy_core.normals import plane_normals
 from canopy_core.spheres import SphereFit, ransac_centre, refine_sphere, sphere_coverage, sphere_inliers
 from canopy_core.voxels import occupied_voxels
 
@@ -752,8 +753,7 @@ class _Scene:
         weights = used[:, :, None].astype(np.float64)
         mean = (points * weights).sum(axis=1) / np.maximum(count, 1)[:, None]
         centred = (points - mean[:, None, :]) * weights
-        _, vectors = np.linalg.eigh(centred.transpose(0, 2, 1) @ centred)  # each neighbourhood's scatter
-        normals = vectors[:, :, 0]
+        normals = plane_normals(centred)
         normals *= np.where(np.einsum("ij,ij->i", normals, centre) > 0.0, -1.0, 1.0)[:, None]
         return normals, count >= _MIN_NORMAL_NEIGHBOURS
 

@@ -29,6 +29,7 @@ from scipy.spatial.transform import Rotation
 
 from canopy_core.config import IcpConfig
 from canopy_core.errors import RegistrationFailed
+from canopy_core.normals import plane_normals
 from canopy_core.register import apply, pose_change
 from canopy_core.voxels import occupied_voxels
 
@@ -125,8 +126,7 @@ def _thinned(points_m: np.ndarray, voxel_m: float) -> tuple[np.ndarray, np.ndarr
     _, index = cKDTree(thinned).query(thinned, k=neighbours, workers=-1)
     local = thinned[index.reshape(thinned.shape[0], neighbours)]
     local -= local.mean(axis=1, keepdims=True)
-    _, vectors = np.linalg.eigh(local.transpose(0, 2, 1) @ local)  # each neighbourhood's scatter
-    return thinned, vectors[:, :, 0]
+    return thinned, plane_normals(local)
 
 
 def anchored_icp(
