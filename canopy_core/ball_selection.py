@@ -902,7 +902,8 @@ def _consistent_choice(
     two balls both views show with it (a ball placed unseen in one view and another in the other would
     leave one shared ball and the views' turn about it open), in which each ball is found by the view's or
     the first view's own detection (not only among ``placed``, the ids of the spheres sought where other
-    views' balls put them), and whose total score is highest; None when there is none.
+    views' balls put them) or two balls are both views' own, and whose total score is highest; None when
+    there is none.
 
     Distances alone allow a mirror image: a look-alike where the ball would lie mirrored across the line
     through the other two (where the circles round the other two meet a second time) makes a
@@ -911,7 +912,9 @@ def _consistent_choice(
     of clutter is found, while that view's look-alikes place the first view's ball (2036042: the yellow
     ball taken from fragments of clutter 1 m off in both views, one found where views/2's triangle put it,
     the other where the trunk and the blue ball did; views/2 turned 48 degrees about the trunk, which the
-    trunk's agreement cannot see, and H came out 37 % high).
+    trunk's agreement cannot see, and H came out 37 % high). Two balls that both views found themselves fix
+    the pose, and a third found by position in both then lies where it is (2074031: the red ball, a third
+    clean in each view).
 
     Every triangle of the first view is compared with every one of the others at once (:class:`_Triangles`):
     after the searches the shortlists hold thousands of combinations, and comparing them one pair at a time
@@ -995,7 +998,9 @@ class _Triangles:
     def agree_with(self, reference: _Triangles, index: int, config: BallConfig) -> np.ndarray:
         """Mask of this view's combinations that may pair with the reference view's ``index``-th: distances
         within ``config.max_distance_mismatch_m`` beyond ``config.distance_mismatch_sds`` of their standard
-        errors, the same turn, two balls both show, and each ball some detection's own in one of the two."""
+        errors, the same turn, two balls both show, and each ball some detection's own in one of the two or
+        two balls both views' own (which fix the pose with the ground's up: a third ball placed in both views
+        then follows from it, and cannot make a wrong pose agree)."""
         excess = np.abs(
             self.distances_m - reference.distances_m[index]
         ) - config.distance_mismatch_sds * np.sqrt(self.variances_m2 + reference.variances_m2[index])
@@ -1004,7 +1009,10 @@ class _Triangles:
             (mismatch <= config.max_distance_mismatch_m)
             & (self.turns == reference.turns[index])
             & ((self.seen & reference.seen[index]).sum(axis=1) >= 2)
-            & (self.own | reference.own[index]).all(axis=1)
+            & (
+                (self.own | reference.own[index]).all(axis=1)
+                | ((self.own & reference.own[index]).sum(axis=1) >= 2)
+            )
         )
 
 
