@@ -514,6 +514,6 @@ def ground_height_map(
     heights.ravel()[cell[starts]] = picked
     seen_cells = np.column_stack(np.nonzero(seen.reshape(size, size)))
     all_cells = np.indices((size, size)).reshape(2, -1).T
-    _, nearest = cKDTree(seen_cells).query(all_cells)
+    _, nearest = cKDTree(seen_cells).query(all_cells, workers=-1)
     filled = heights[seen_cells[nearest, 0], seen_cells[nearest, 1]].reshape(size, size)
     return GroundHeightMap(origin_xy_m=origin, cell_m=cell_m, heights_m=filled)

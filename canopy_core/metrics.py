@@ -350,7 +350,9 @@ def crown_mask(
     column = np.flatnonzero(candidates & in_column)
     near_column = crown & (radial <= trunk_column_m + link_m)
     if column.size and near_column.any():
-        distance, _ = cKDTree(points_m[near_column]).query(points_m[column], distance_upper_bound=link_m)
+        distance, _ = cKDTree(points_m[near_column]).query(
+            points_m[column], distance_upper_bound=link_m, workers=-1
+        )
         crown[column[np.isfinite(distance)]] = True
     return crown
 

@@ -95,7 +95,7 @@ class IcpRefinement:
 
 def alignment_quality(points_m: np.ndarray, others: cKDTree, *, max_distance_m: float) -> AlignmentQuality:
     """Correspondence statistics of ``points_m`` against the points indexed by ``others``."""
-    distance, _ = others.query(points_m, distance_upper_bound=max_distance_m)
+    distance, _ = others.query(points_m, distance_upper_bound=max_distance_m, workers=-1)
     matched = distance[np.isfinite(distance)]
     if matched.size == 0:
         return AlignmentQuality(0.0, None, None, None)
