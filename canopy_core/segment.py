@@ -568,19 +568,13 @@ def _best_line(pool_m: np.ndarray, *, tolerance_m: float, roi_radius_m: float) -
             np.broadcast_to(np.floor(pool_m[:, 2:] / tolerance_m).astype(np.int64), along.shape),
         ]
     ).reshape(3, -1)
-    stretch = np.floor(along / _WIRE_BIN_M).astype(np.int64).ravel()
     line_key = np.ravel_multi_index(
         tuple(line - line.min(axis=1, keepdims=True)), tuple(np.ptp(line, axis=1) + 1)
     )
-    stretches = int(np.ptp(stretch)) + 1
-    # The stretches each line covers, as one sorted list of (line, stretch) keys: each line's in a run.
-    covered_lines = np.unique(line_key * stretches + stretch - stretch.min()) // stretches
-    starts = np.flatnonzero(np.diff(covered_lines, prepend=-1))
-    score = np.diff(starts, append=covered_lines.size)
-    best = int(np.argmax(score))
-    if score[best] * _WIRE_BIN_M < _WIRE_OPEN_SPAN_M:
+    best_key, covered_m = _best_covered_line(line_key, along.ravel())
+    if covered_m < _WIRE_OPEN_SPAN_M:
         return None
-    chosen = np.flatnonzero(line_key == covered_lines[starts[best]])
+    chosen = np.flatnonzero(line_key == best_key)
     angle = int(chosen[0] % angles.size)
     points = chosen // angles.size
     direction = np.append(directions[angle], 0.0)
@@ -603,15 +597,26 @@ def _best_parallel_line(
     line = np.floor(np.column_stack([across, rise]) / tolerance_m).astype(np.int64)
     line -= line.min(axis=0)
     line_key = line[:, 0] * (int(line[:, 1].max()) + 1) + line[:, 1]
-    stretch = np.floor(along / _WIRE_BIN_M).astype(np.int64)
-    stretch -= stretch.min()
-    covered = np.unique(line_key * (int(stretch.max()) + 1) + stretch) // (int(stretch.max()) + 1)
-    keys, score = np.unique(covered, return_counts=True)
-    if score.max() * _WIRE_BIN_M < shortest_m:
+    best_key, covered_m = _best_covered_line(line_key, along)
+    if covered_m < shortest_m:
         return None
-    chosen = line_key == keys[np.argmax(score)]
+    chosen = line_key == best_key
     centre = np.array([np.mean(across[chosen]), np.mean(rise[chosen])])
     return np.hypot(across - centre[0], rise - centre[1]) < tolerance_m
+
+
+def _best_covered_line(line_key: np.ndarray, along_m: np.ndarray) -> tuple[int, float]:
+    """The Hough transforms' vote: of the lines ``line_key`` (one non-negative integer per point and line,
+    the point's position ``along_m`` it), the one that covers most length (stretches of
+    :data:`_WIRE_BIN_M` holding a point), the lowest key among equals; and that length in metres."""
+    stretch = np.floor(along_m / _WIRE_BIN_M).astype(np.int64)
+    stretches = int(np.ptp(stretch)) + 1
+    # The stretches each line covers, as one sorted list of (line, stretch) keys: each line's in a run.
+    covered_lines = np.unique(line_key * stretches + stretch - stretch.min()) // stretches
+    starts = np.flatnonzero(np.diff(covered_lines, prepend=-1))
+    score = np.diff(starts, append=covered_lines.size)
+    best = int(np.argmax(score))
+    return int(covered_lines[starts[best]]), float(score[best] * _WIRE_BIN_M)
 
 
 def _straight_stretches(pool_m: np.ndarray, *, tolerance_m: float) -> list[tuple[np.ndarray, np.ndarray]]:
