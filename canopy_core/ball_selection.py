@@ -48,9 +48,18 @@ _CIRCLE_TRIES = 6
 _CARRY_SD_M = 0.01
 """A ball carried onto this view by a pair of balls and the ground's up lands within about this of where it
 lies: the views' ground normals agree within a degree, and the balls lie 0.6-1.2 m apart."""
+_MAX_SHARED_PAIRS = 32
+"""At most this many pairs of spheres that two views show the same distance apart are tried, likeliest first,
+by the search where fragments meet. Each costs a sphere fit per place the third ball's colour gathers; a row
+with many look-alikes of two colours pairs them by the thousand (13 225 pairs of 32 red and 54 yellow
+spheres in one view and 20 and 53 in the other: over a quarter of an hour), where the balls' own pair is
+among the likeliest few (at most 15 pairs in all on 30 simulated trees)."""
 _PLACEMENT_TOLERANCE_M = 0.05
 """A sphere found this close to where the other views place a ball is that ball: the placement errs by the
 ground's unevenness under the balls and the plane's error, a few centimetres."""
+
+_SharedPair = tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
+"""Two spheres' centres in one view and the same two in another."""
 
 
 @dataclass(frozen=True)
@@ -532,6 +541,14 @@ def _search_by_pair(
     spheres added."""
     del per_view  # the pair both views show places the ball, not a triangle
     added: list[list[BallCandidate]] = [[] for _ in views]
+    fitted: dict[tuple[int, str, bytes], BallCandidate | None] = {}  # pairs near each other share guesses
+
+    def sphere_at(index: int, guess: np.ndarray, color: str) -> BallCandidate | None:
+        key = (index, color, guess.tobytes())
+        if key not in fitted:
+            fitted[key] = views[index].sphere_near(guess, color, config)
+        return fitted[key]
+
     for color in config.colors:
         others = [other for other in config.colors if other != color][:2]
         for source, target in itertools.permutations(range(len(views)), 2):
@@ -547,7 +564,7 @@ def _search_by_pair(
                 for guess in views[source].places_of(
                     color, config, around_m=middle, reach_m=2 * config.max_trunk_distance_m
                 ):
-                    seen = views[source].sphere_near(guess, color, config)
+                    seen = sphere_at(source, guess, color)
                     if seen is None or seen.color_scores[color] < config.min_color_score:
                         continue
                     carried = (here[0] + here[1]) / 2 + frame_here @ (
@@ -583,26 +600,31 @@ def _listed_near(centre_m: np.ndarray, listed: Sequence[BallCandidate], radius_m
 
 def _shared_pairs(
     first: _Shortlist, second: _Shortlist, colors: list[str], config: BallConfig
-) -> list[tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]]:
+) -> list[_SharedPair]:
     """The pairs of likely spheres of two ``colors`` in two views that stand the same distance apart in
     both (within ``max_distance_mismatch_m``): each a pair of centres in the first view and in the
-    second. Balls placed unseen take no part: the pair must be seen in both views."""
+    second, in the order found; at most ``_MAX_SHARED_PAIRS`` of them, those whose four spheres' scores have
+    the greatest product. Balls placed unseen take no part: the pair must be seen in both views."""
     if len(colors) < 2:
         return []
 
-    def seen(shortlist: _Shortlist, color: str) -> list[BallCandidate]:
-        return [c for c in shortlist.plausible[color] if not c.unseen]
+    def seen(shortlist: _Shortlist, color: str) -> list[tuple[BallCandidate, float]]:
+        return [
+            (c, c.score(color, radius_m=config.radius_m)) for c in shortlist.plausible[color] if not c.unseen
+        ]
 
-    matched = []
-    for a, b in itertools.product(seen(first, colors[0]), seen(first, colors[1])):
+    matched: list[tuple[float, int, _SharedPair]] = []
+    for (a, score_a), (b, score_b) in itertools.product(seen(first, colors[0]), seen(first, colors[1])):
         apart = float(np.linalg.norm(a.fit.center_m - b.fit.center_m))
-        for c, d in itertools.product(seen(second, colors[0]), seen(second, colors[1])):
+        for (c, score_c), (d, score_d) in itertools.product(seen(second, colors[0]), seen(second, colors[1])):
             if (
                 abs(float(np.linalg.norm(c.fit.center_m - d.fit.center_m)) - apart)
                 <= config.max_distance_mismatch_m
             ):
-                matched.append(((a.fit.center_m, b.fit.center_m), (c.fit.center_m, d.fit.center_m)))
-    return matched
+                pairs = ((a.fit.center_m, b.fit.center_m), (c.fit.center_m, d.fit.center_m))
+                matched.append((score_a * score_b * score_c * score_d, len(matched), pairs))
+    likeliest = sorted(matched, key=lambda entry: (-entry[0], entry[1]))[:_MAX_SHARED_PAIRS]
+    return [pairs for _, _, pairs in sorted(likeliest, key=lambda entry: entry[1])]
 
 
 def _carried_round_trunk(

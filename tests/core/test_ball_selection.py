@@ -10,7 +10,15 @@ from scipy.spatial.transform import Rotation
 
 from canopy_core.backproject import ViewCloud
 from canopy_core.ball_preview import ball_report
-from canopy_core.ball_selection import _carried_round_trunk, check_ball_spacing, choose_in_view, select_balls
+from canopy_core.ball_selection import (
+    _MAX_SHARED_PAIRS,
+    _carried_round_trunk,
+    _shared_pairs,
+    _Shortlist,
+    check_ball_spacing,
+    choose_in_view,
+    select_balls,
+)
 from canopy_core.balls import BallCandidate, ViewBallCandidates, find_ball_candidates
 from canopy_core.config import BallConfig
 from canopy_core.errors import BallNotFound, RegistrationFailed
@@ -414,3 +422,33 @@ def test_a_ball_is_carried_round_the_trunk_by_the_shared_ball_the_ground_and_the
         )
         is None
     )
+
+
+def test_the_pairs_two_views_share_are_bounded_and_the_likeliest_kept() -> None:
+    """A row of look-alikes (straw balls, apples) of two colours, all the balls' size and a metre apart in
+    a line, pairs with itself by the hundred in two views; the search where fragments meet tries only
+    ``_MAX_SHARED_PAIRS`` pairs, and the balls' own pair, scored above every look-alike, is among them."""
+    config = BallConfig()
+
+    def sphere(centre: tuple[float, float, float], color: str, completeness: float) -> BallCandidate:
+        fit = SphereFit(np.asarray(centre), 0.05, int(70 * completeness), 0.003, 0.95)
+        return BallCandidate(
+            fit=fit, expected_points=70.0, color_scores={c: float(c == color) for c in COLORS}
+        )
+
+    def shortlist(balls: tuple[np.ndarray, np.ndarray]) -> _Shortlist:
+        plausible: dict[str, list[BallCandidate]] = {color: [] for color in COLORS}
+        for i in range(12):  # look-alikes on a line along the row, 0.3 m apart: many pairs 0.9 m apart
+            plausible["red"].append(sphere((-1.5 + 0.3 * i, 1.0, 4.0), "red", 0.5))
+            plausible["yellow"].append(sphere((-1.5 + 0.3 * i, 1.0, 4.5), "yellow", 0.5))
+        plausible["red"].append(sphere(tuple(balls[0]), "red", 1.0))
+        plausible["yellow"].append(sphere(tuple(balls[1]), "yellow", 1.0))
+        return _Shortlist(plausible=plausible, refused={color: [] for color in COLORS})
+
+    first_balls = (np.array([-0.4, 1.0, 3.3]), np.array([0.45, 1.0, 3.2]))
+    second_balls = (np.array([0.4, 1.0, 2.7]), np.array([-0.45, 1.0, 2.8]))
+    every = _shared_pairs(shortlist(first_balls), shortlist(second_balls), ["red", "yellow"], config)
+    assert len(every) == _MAX_SHARED_PAIRS
+
+    kept = [(tuple(there[0]), tuple(here[0])) for there, here in every]
+    assert (tuple(first_balls[0]), tuple(second_balls[0])) in kept
