@@ -29,7 +29,7 @@ from canopy_core.backproject import ViewCloud
 from canopy_core.config import BallConfig
 from canopy_core.errors import BallNotFound
 from canopy_core.ground import GroundPlane
-from canopy_core.normals import plane_normals
+from canopy_core.normals import scatter_normals
 from canopy_core.spheres import SphereFit, ransac_centre, refine_sphere, sphere_coverage, sphere_inliers
 from canopy_core.voxels import occupied_voxels
 
@@ -747,13 +747,16 @@ class _Scene:
         window_rows = np.clip(rows[:, None] + step[:, None] * _NEIGHBOUR_OFFSETS[:, 0], 0, height - 1)
         window_cols = np.clip(cols[:, None] + step[:, None] * _NEIGHBOUR_OFFSETS[:, 1], 0, width - 1)
         neighbours = self.point_at_pixel[window_rows.astype(np.int64), window_cols.astype(np.int64)]
-        points = self.cloud.points_m[np.maximum(neighbours, 0)]
-        used = (neighbours >= 0) & (np.abs(points[:, :, 2] - centre[:, None, 2]) < radius_m)
+        # The scatter about the neighbours' mean, from their offsets from the point (small numbers, so no
+        # digits are lost): the sum of the offsets' outer products less the outer product of their sum / n.
+        offsets = self.cloud.points_m[np.maximum(neighbours, 0)] - centre[:, None, :]
+        used = (neighbours >= 0) & (np.abs(offsets[:, :, 2]) < radius_m)
+        offsets *= used[:, :, None]
         count = used.sum(axis=1)
-        weights = used[:, :, None].astype(np.float64)
-        mean = (points * weights).sum(axis=1) / np.maximum(count, 1)[:, None]
-        centred = (points - mean[:, None, :]) * weights
-        normals = plane_normals(centred)
+        total = offsets.sum(axis=1)
+        scatter = offsets.transpose(0, 2, 1) @ offsets
+        scatter -= total[:, :, None] * total[:, None, :] / np.maximum(count, 1)[:, None, None]
+        normals = scatter_normals(scatter)
         normals *= np.where(np.einsum("ij,ij->i", normals, centre) > 0.0, -1.0, 1.0)[:, None]
         return normals, count >= _MIN_NORMAL_NEIGHBOURS
 

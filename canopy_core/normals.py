@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["plane_normals"]
+__all__ = ["plane_normals", "scatter_normals"]
 
 _CLOSE_EIGENVALUES = 1e-4
 """The two least eigenvalues of a scatter nearly coincide when they differ by less than this share of the
@@ -27,7 +27,13 @@ def plane_normals(centred: np.ndarray) -> np.ndarray:
     whose points are centred on their mean (a point left out is all zeros); ``(N, 3)``.
 
     The same as the eigenvector of the least eigenvalue of each scatter matrix (``numpy.linalg.eigh``)."""
-    scatter = centred.transpose(0, 2, 1) @ centred
+    return scatter_normals(centred.transpose(0, 2, 1) @ centred)
+
+
+def scatter_normals(scatter: np.ndarray) -> np.ndarray:
+    """The unit eigenvector (of either sign) of the least eigenvalue of each of ``(N, 3, 3)`` symmetric
+    positive semi-definite scatter matrices: the normal of the plane that best fits the points whose scatter
+    about their mean it is; ``(N, 3)``."""
     xx, yy, zz = scatter[:, 0, 0], scatter[:, 1, 1], scatter[:, 2, 2]
     xy, xz, yz = scatter[:, 0, 1], scatter[:, 0, 2], scatter[:, 1, 2]
     mean = (xx + yy + zz) / 3.0
@@ -51,7 +57,7 @@ def plane_normals(centred: np.ndarray) -> np.ndarray:
     )
     lengths = np.einsum("knj,knj->kn", crosses, crosses)
     longest = np.argmax(lengths, axis=0)
-    rows = np.arange(centred.shape[0])
+    rows = np.arange(scatter.shape[0])
     normals = crosses[longest, rows]
     length = np.sqrt(lengths[longest, rows])
     solved = (middle - least > _CLOSE_EIGENVALUES * np.abs(largest)) & (length > 0.0)

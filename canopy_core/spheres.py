@@ -9,6 +9,7 @@ seeds them from its own candidates.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -397,31 +398,34 @@ def _least_squares_sphere(
     jacobian[count, 3] = prior_slope
 
     def residuals(sphere: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The residuals f, the unit directions from the points to the centre, and the points' distances
-        from the centre."""
+        """The residuals f, the offsets from the points to the centre, and their lengths (the directions
+        are only worked out for the spheres stepped to, not for each halving tried)."""
         offsets = sphere[:3] - points
         lengths = np.maximum(np.sqrt(np.einsum("ij,ij->i", offsets, offsets)), 1e-12)
         values = np.empty(count + 1)
-        values[:count] = lengths - sphere[3]
+        np.subtract(lengths, sphere[3], out=values[:count])
         values[count] = prior_slope * (sphere[3] - nominal_radius_m)
-        return values, offsets / lengths[:, None], lengths
+        return values, offsets, lengths
 
-    def loss(values: np.ndarray) -> float:
-        return float(np.sum(np.sqrt(1.0 + (values / scale) ** 2))) - values.size
+    def loss(values: np.ndarray) -> tuple[float, np.ndarray]:
+        """The loss, and 1 + z per residual (which the next step's weights need)."""
+        spread = 1.0 + (values / scale) ** 2
+        return float(np.sqrt(spread).sum()) - values.size, spread
 
     sphere = np.asarray(start, dtype=np.float64).copy()
     sphere[3] = np.clip(sphere[3], lowest, highest)
-    values, directions, lengths = residuals(sphere)
-    current = loss(values)
+    values, offsets, lengths = residuals(sphere)
+    current, spread = loss(values)
     for _ in range(_NEWTON_STEPS):
-        spread = 1.0 + (values / scale) ** 2
         slope = 1.0 / np.sqrt(spread)  # rho'(z)
+        directions = offsets / lengths[:, None]
         jacobian[:count, :3] = directions
-        gradient = (jacobian.T * slope) @ values
-        hessian = (jacobian.T * (slope / spread)) @ jacobian
+        weighted = jacobian.T * slope
+        gradient = weighted @ values
+        hessian = (weighted / spread) @ jacobian
         bend = slope[:count] * values[:count] / lengths
         hessian[:3, :3] -= (directions.T * bend) @ directions
-        hessian[(0, 1, 2), (0, 1, 2)] += np.sum(bend)
+        hessian[(0, 1, 2), (0, 1, 2)] += bend.sum()
         pushed_out = (sphere[3] <= lowest and gradient[3] > 0.0) or (
             sphere[3] >= highest and gradient[3] < 0.0
         )
@@ -433,7 +437,7 @@ def _least_squares_sphere(
         except np.linalg.LinAlgError:
             downhill = False
         if not downhill:
-            gauss_newton = (jacobian.T * slope) @ jacobian
+            gauss_newton = weighted @ jacobian
             try:
                 step[:solved] = -np.linalg.solve(gauss_newton[:solved, :solved], gradient[:solved])
             except np.linalg.LinAlgError:
@@ -441,16 +445,16 @@ def _least_squares_sphere(
         while True:
             trial = sphere + step
             trial[3] = min(max(trial[3], lowest), highest)
-            trial_values, trial_directions, trial_lengths = residuals(trial)
-            trial_loss = loss(trial_values)
+            trial_values, trial_offsets, trial_lengths = residuals(trial)
+            trial_loss, trial_spread = loss(trial_values)
             if trial_loss <= current:
                 break
             step /= 2.0
-            if np.linalg.norm(step) < _CONVERGED_M:
+            if math.sqrt(step @ step) < _CONVERGED_M:
                 return sphere
-        moved = float(np.linalg.norm(trial - sphere))
-        sphere, values, directions, lengths = trial, trial_values, trial_directions, trial_lengths
-        current = trial_loss
+        moved = math.sqrt((trial - sphere) @ (trial - sphere))
+        sphere, values, offsets, lengths = trial, trial_values, trial_offsets, trial_lengths
+        current, spread = trial_loss, trial_spread
         if moved < _CONVERGED_M:
             break
     return sphere
