@@ -99,9 +99,11 @@ def with_neighbours(
     tree within ``radius_m`` (one radius, or one per point).
 
     The point itself is its own nearest, so it has them when its (count + 1)-th nearest lies within its
-    radius: asking for that one distance costs half of counting every point in reach.
+    radius: asking for that one distance costs half of counting every point in reach, and the search stops
+    at the largest radius (farther, the distance comes back infinite: not within reach either).
     """
     if points_m.shape[0] == 0:
         return np.zeros(0, dtype=bool)
-    distances, _ = tree.query(points_m, k=[count + 1], workers=-1)
+    reach = np.nextafter(float(np.max(radius_m)), np.inf)
+    distances, _ = tree.query(points_m, k=[count + 1], distance_upper_bound=reach, workers=-1)
     return distances[:, 0] <= radius_m
