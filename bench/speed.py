@@ -3,12 +3,18 @@
 Runs the real command (process start, imports, loading, the whole pipeline, JSON output) ``--repeat`` times
 and prints each time and the median; then the in-process time per stage of one run.
 
-    .venv/bin/python bench/speed.py [--repeat 5] [--seed 1]
+With ``--against REV`` the same capture is also measured by the code of git revision ``REV`` (checked out
+in a temporary worktree, run with this environment's packages), the two alternating run by run, and the
+ratio of the medians is printed: the honest way to compare two versions, since a shared or throttled
+machine's speed drifts by tens of per cent within an hour and by more from day to day.
+
+    .venv/bin/python bench/speed.py [--repeat 5] [--seed 1] [--against 73286c1]
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
 import subprocess
 import sys
@@ -19,25 +25,68 @@ from pathlib import Path
 from canopy_core.measure import measure
 from canopy_core.simulate import simulate_capture
 
+REPOSITORY = Path(__file__).resolve().parent.parent
+
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=5)
     parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument(
+        "--against", metavar="REV", help="Also time git revision REV, alternating with this code."
+    )
     options = parser.parse_args()
-    canopy = Path(sys.executable).with_name("canopy")
     with tempfile.TemporaryDirectory(prefix="canopy-speed-") as scratch:
         capture = simulate_capture(Path(scratch) / "tree", seed=options.seed, n_views=2, native_color=True)
-        times = []
-        for _ in range(options.repeat):
-            started = time.perf_counter()
-            subprocess.run([str(canopy), "measure", str(capture), "--json"], check=True, capture_output=True)
-            times.append(time.perf_counter() - started)
         print("canopy measure --json, two-view Kinect v2 capture (512x424 depth, 1920x1080 colour)")
-        print("runs (s): " + ", ".join(f"{t:.2f}" for t in times))
-        print(f"median of {len(times)}: {statistics.median(times):.2f} s")
+        if options.against is None:
+            times = [_timed_run(capture, source=None) for _ in range(options.repeat)]
+            _print_runs("this code", times)
+        else:
+            other = Path(scratch) / "against"
+            command = ["git", "-C", str(REPOSITORY), "worktree", "add", "--detach", "--quiet", str(other)]
+            added = subprocess.run([*command, options.against], capture_output=True, text=True)
+            if added.returncode != 0:
+                sys.exit(f"cannot check out {options.against} to compare with: {added.stderr.strip()}")
+            try:
+                runs: dict[str, list[float]] = {"this code": [], options.against: []}
+                for _ in range(options.repeat):
+                    runs["this code"].append(_timed_run(capture, source=None))
+                    runs[options.against].append(_timed_run(capture, source=other))
+            finally:
+                subprocess.run(
+                    ["git", "-C", str(REPOSITORY), "worktree", "remove", "--force", str(other)], check=True
+                )
+            for name, times in runs.items():
+                _print_runs(name, times)
+            ratio = statistics.median(runs["this code"]) / statistics.median(runs[options.against])
+            print(f"this code / {options.against}: {ratio:.2f}")
         result = measure(capture)
         print("in-process stages (s): " + ", ".join(f"{k} {v:.3f}" for k, v in result.timings_s.items()))
+
+
+def _timed_run(capture: Path, *, source: Path | None) -> float:
+    """Seconds one ``canopy measure --json`` takes, on this code or on the source tree ``source`` (put
+    first on the import path, before the installed package)."""
+    canopy = Path(sys.executable).with_name("canopy")
+    environment = dict(os.environ)
+    if source is not None:
+        environment["PYTHONPATH"] = os.pathsep.join(
+            filter(None, [str(source), environment.get("PYTHONPATH")])
+        )
+    started = time.perf_counter()
+    subprocess.run(
+        [str(canopy), "measure", str(capture), "--json"], check=True, capture_output=True, env=environment
+    )
+    return time.perf_counter() - started
+
+
+def _print_runs(name: str, times: list[float]) -> None:
+    print(
+        f"{name}: runs (s) "
+        + ", ".join(f"{t:.2f}" for t in times)
+        + f"; median {statistics.median(times):.2f} s"
+    )
 
 
 if __name__ == "__main__":
