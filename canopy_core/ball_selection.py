@@ -541,7 +541,7 @@ def _search_by_pair(
     spheres added."""
     del per_view  # the pair both views show places the ball, not a triangle
     added: list[list[BallCandidate]] = [[] for _ in views]
-    fitted: dict[tuple[int, str, bytes], BallCandidate | None] = {}  # pairs near each other share guesses
+    fitted: dict[tuple[int, str, bytes], BallCandidate | None] = {}  # pairs near each other share places
 
     def sphere_at(index: int, guess: np.ndarray, color: str) -> BallCandidate | None:
         key = (index, color, guess.tobytes())
