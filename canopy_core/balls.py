@@ -527,8 +527,7 @@ def find_ball_candidates(
         return ViewBallCandidates(
             view=cloud.view, candidates=(), colored_points=colored_points, hsv_ranges=hsv_ranges, scene=scene
         )
-    normals, ok = scene.normals(seeds, radius_m=config.radius_m)
-    seeds, normals = seeds[ok], normals[ok]
+    seeds, normals = scene.normals(seeds, radius_m=config.radius_m)
     votes = cloud.points_m[seeds] - config.radius_m * normals
     candidates: list[BallCandidate] = []
     for i in range(len(config.colors)):
@@ -544,10 +543,10 @@ def find_ball_candidates(
         if ground is not None:
             shaded = _shaded_seeds(i, scene, ground, config)
             if shaded.size >= config.min_points:
-                shaded_normals, shaded_ok = scene.normals(shaded, radius_m=config.radius_m)
-                shaded_votes = cloud.points_m[shaded[shaded_ok]] - config.radius_m * shaded_normals[shaded_ok]
+                shaded, shaded_normals = scene.normals(shaded, radius_m=config.radius_m)
+                shaded_votes = cloud.points_m[shaded] - config.radius_m * shaded_normals
                 peaks = _grounded_first(
-                    _vote_peaks(shaded_votes, scene.chroma[i, shaded[shaded_ok]], scene, config.radius_m),
+                    _vote_peaks(shaded_votes, scene.chroma[i, shaded], scene, config.radius_m),
                     ground,
                     config,
                 )
@@ -731,7 +730,8 @@ class _Scene:
         return 2.0 * np.pi * (1.0 - np.sqrt(1.0 - sine_sq)) * self.focal_px[0] * self.focal_px[1]
 
     def normals(self, indices: np.ndarray, *, radius_m: float) -> tuple[np.ndarray, np.ndarray]:
-        """Unit surface normals, facing the camera, of the points ``indices``; and which could be estimated.
+        """Those of the points ``indices`` whose surface normal can be estimated (``_MIN_NORMAL_NEIGHBOURS``
+        neighbours on their surface), and their unit normals, facing the camera.
 
         Each normal is the least-variance direction of the point and its 8 neighbours at a pixel step
         that spans ``_NORMAL_BASELINE`` ball radii at the point's range (so the normal of a far ball's
@@ -751,14 +751,21 @@ class _Scene:
         # digits are lost): the sum of the offsets' outer products less the outer product of their sum / n.
         offsets = self.cloud.points_m[np.maximum(neighbours, 0)] - centre[:, None, :]
         used = (neighbours >= 0) & (np.abs(offsets[:, :, 2]) < radius_m)
-        offsets *= used[:, :, None]
         count = used.sum(axis=1)
+        estimable = count >= _MIN_NORMAL_NEIGHBOURS
+        offsets, used, count, centre = (
+            offsets[estimable],
+            used[estimable],
+            count[estimable],
+            centre[estimable],
+        )
+        offsets *= used[:, :, None]
         total = offsets.sum(axis=1)
         scatter = offsets.transpose(0, 2, 1) @ offsets
-        scatter -= total[:, :, None] * total[:, None, :] / np.maximum(count, 1)[:, None, None]
+        scatter -= total[:, :, None] * total[:, None, :] / count[:, None, None]
         normals = scatter_normals(scatter)
         normals *= np.where(np.einsum("ij,ij->i", normals, centre) > 0.0, -1.0, 1.0)[:, None]
-        return normals, count >= _MIN_NORMAL_NEIGHBOURS
+        return indices[estimable], normals
 
     def points_over(self, centre_m: np.ndarray, up: np.ndarray, radius_m: float) -> int:
         """How many points stand right over a sphere of ``radius_m`` at ``centre_m`` (``up`` the ground's
