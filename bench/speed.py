@@ -44,8 +44,12 @@ def main() -> None:
             _print_runs("this code", times)
         else:
             other = Path(scratch) / "against"
-            command = ["git", "-C", str(REPOSITORY), "worktree", "add", "--detach", "--quiet", str(other)]
-            added = subprocess.run([*command, options.against], capture_output=True, text=True)
+            worktree = ["git", "-C", str(REPOSITORY), "worktree"]
+            added = subprocess.run(
+                [*worktree, "add", "--detach", "--quiet", str(other), options.against],
+                capture_output=True,
+                text=True,
+            )
             if added.returncode != 0:
                 sys.exit(f"cannot check out {options.against} to compare with: {added.stderr.strip()}")
             try:
@@ -54,9 +58,7 @@ def main() -> None:
                     runs["this code"].append(_timed_run(capture, source=None))
                     runs[options.against].append(_timed_run(capture, source=other))
             finally:
-                subprocess.run(
-                    ["git", "-C", str(REPOSITORY), "worktree", "remove", "--force", str(other)], check=True
-                )
+                subprocess.run([*worktree, "remove", "--force", str(other)], check=True)
             for name, times in runs.items():
                 _print_runs(name, times)
             ratio = statistics.median(runs["this code"]) / statistics.median(runs[options.against])
