@@ -1,4 +1,4 @@
-"""The dashboard in a real browser against a live `canopy up`: sign in with a key, see a job go from
+"""The dashboard in a real browser against a live service: sign in with a key, see a job go from
 queued to succeeded, open its report, find its numbers and figures and the 3D viewer drawn with the tree's
 points (screenshot pixels); signing out ends the session. Session cookies read with their key's scopes
 and never write."""
@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import io
 import os
-import subprocess
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -18,32 +17,27 @@ from PIL import Image
 from playwright.sync_api import Page
 
 from tests.service.browser import chromium
-from tests.service.running import CANOPY, free_port, start_up, stop_up, upload_capture
+from tests.service.running import Service, start_service, upload_capture
 
 SCREENSHOTS = os.environ.get("CANOPY_SCREENSHOTS_DIR")
 """Where the test leaves its screenshots (the README's come from here: CANOPY_SCREENSHOTS_DIR=docs/images)."""
 
 
 @pytest.fixture
-def up(tmp_path: Path) -> Iterator[tuple[str, str, str]]:
-    """`canopy up` on a fresh data folder: its address, a read key and a capture key."""
-    port, data = free_port(), tmp_path / "data"
-    process, _ = start_up(data, port)
+def served(tmp_path: Path) -> Iterator[tuple[Service, str, str]]:
+    """`canopy serve` alone on a fresh data folder, a read key and a capture key: the test starts the
+    worker when it wants jobs to run, so that a queued job stays queued until the page has shown it (a
+    two-second poll can miss a job that runs in one)."""
+    service = start_service(tmp_path)
     try:
         keys = []
         for scope in ("read", "capture"):
-            made = subprocess.run(
-                [CANOPY, "keys", "create", "--scope", scope, "--name", f"dashboard {scope}"],
-                env={**os.environ, "CANOPY_DATA_DIR": str(data)},
-                capture_output=True,
-                text=True,
-                check=True,
-                timeout=60,
-            )
+            made = service.canopy("keys", "create", "--scope", scope, "--name", f"dashboard {scope}")
+            assert made.returncode == 0, made.stderr
             keys.append(made.stdout.strip().splitlines()[-1])
-        yield f"http://127.0.0.1:{port}", keys[0], keys[1]
+        yield service, keys[0], keys[1]
     finally:
-        stop_up(process)
+        service.stop()
 
 
 def _shot(page: Page, name: str, tmp_path: Path) -> None:
@@ -54,9 +48,10 @@ def _shot(page: Page, name: str, tmp_path: Path) -> None:
 
 
 def test_sign_in_follow_a_job_to_its_report_and_see_the_tree_in_3d(
-    up: tuple[str, str, str], tree_capture: Path, tmp_path: Path
+    served: tuple[Service, str, str], tree_capture: Path, tmp_path: Path
 ) -> None:
-    server, read_key, capture_key = up
+    service, read_key, capture_key = served
+    server = service.url
     with chromium() as browser:
         page = browser.new_page(viewport={"width": 1100, "height": 800})
         errors: list[str] = []
@@ -71,7 +66,8 @@ def test_sign_in_follow_a_job_to_its_report_and_see_the_tree_in_3d(
             capture_id = upload_capture(client, tree_capture)
             job_id = client.post(f"/v1/captures/{capture_id}/jobs").json()["id"]
         row = f"tr[data-job='{job_id}']"
-        page.wait_for_selector(f"{row}[data-state=queued], {row}[data-state=running]", timeout=20_000)
+        page.wait_for_selector(f"{row}[data-state=queued]", timeout=20_000)  # no worker runs yet
+        service.start_worker()
         page.wait_for_selector(f"{row}[data-state=succeeded]", timeout=120_000)
         page.wait_for_selector("#farm tr[data-tree] a", timeout=10_000)  # the tree's latest H, W, D
         _shot(page, "dashboard.png", tmp_path)
@@ -128,8 +124,9 @@ def _pixels(png: bytes) -> np.ndarray:
     return np.asarray(Image.open(io.BytesIO(png)).convert("RGB")).astype(int)
 
 
-def test_a_session_reads_with_its_key_s_scopes_and_never_writes(up: tuple[str, str, str]) -> None:
-    server, read_key, _ = up
+def test_a_session_reads_with_its_key_s_scopes_and_never_writes(served: tuple[Service, str, str]) -> None:
+    service, read_key, _ = served
+    server = service.url
     with httpx.Client(base_url=server) as browser:
         signed_in = browser.post("/v1/session", headers={"Authorization": f"Bearer {read_key}"})
         assert signed_in.status_code == 200 and signed_in.json()["key"]["scopes"] == ["read"]
