@@ -16,6 +16,7 @@ from canopy_core.ball_selection import (
     balls_off_ground,
     balls_off_trunk,
     far_ball,
+    no_trunk_round_balls,
     select_balls,
 )
 from canopy_core.balls import BallCandidate, ViewBallCandidates
@@ -357,7 +358,8 @@ def balls_and_frame(
     lying on the ground agrees with itself across views; a fallen apple's centre lies lower than a ball's):
     the balls are chosen again without it (ruled out: no search finds it again as a fragment), and without
     any other sphere that lies as far from the trunk (the same apple fitted twice, its neighbours in a
-    heap), so the ball is sought where the others place it. The ball is named in the reference view's
+    heap), so the ball is sought where the others place it. When no trunk stands round the balls at all
+    (:func:`no_trunk_round_balls`), each ball is ruled out in turn. The ball is named in the reference view's
     frame, but the look-alike may be another view's: when each view took a look-alike for a different
     ball, each placed where the other's puts it, the triangles agree and the reference's odd ball out is
     the other view's true one. So if choosing again without the ball named fails, each other colour's
@@ -376,12 +378,15 @@ def balls_and_frame(
         return choices, view_to_reference, ground
     named, failure = misplaced
     trunk_xy = np.array(ground.trunk_xy_m)
-    for color in dict.fromkeys((named, *config.balls.colors)):
+    for color in dict.fromkeys((*([named] if named else []), *config.balls.colors)):
         without = []
         for view, choice, pose in zip(candidates, choices, view_to_reference, strict=True):
             world_from_view = ground.world_from_reference @ pose
             # Ruled out, not merely dropped: no search may find the look-alike again as a fragment.
             ruled = view.ruling_out(choice.chosen[color].fit.center_m, config.balls.radius_m)
+            if named is None:  # no trunk found: none to keep the spheres round
+                without.append(ruled)
+                continue
             without.append(
                 replace(
                     ruled,
@@ -414,9 +419,13 @@ def _round_trunk(
 
 def _misplaced_ball(
     balls_world: np.ndarray, ground: GroundFrame, config: MeasureConfig
-) -> tuple[str, RegistrationFailed] | None:
+) -> tuple[str | None, RegistrationFailed] | None:
     """The colour of a ball that cannot be one, far from the trunk or off the ground, with the failure to
-    raise if no other choice does better; None when the balls lie where balls lie."""
+    raise if no other choice does better; None for the colour when no trunk stands round the balls at all
+    (each may be the look-alike); None when the balls lie where balls lie."""
+    trunkless = no_trunk_round_balls(ground)
+    if trunkless is not None:
+        return None, trunkless
     trunk_xy = np.array(ground.trunk_xy_m)
     colors = config.balls.colors
     far = far_ball(balls_world, trunk_xy, colors, config.balls.max_trunk_distance_m)

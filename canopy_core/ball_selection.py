@@ -33,6 +33,7 @@ __all__ = [
     "choose_in_view",
     "describe_view",
     "far_ball",
+    "no_trunk_round_balls",
     "select_balls",
 ]
 
@@ -144,6 +145,29 @@ def balls_off_trunk(
         field="balls.max_trunk_distance_m",
         hint=f"check with `canopy balls --preview` what was taken for the {far} ball; lay the balls "
         "0.3-0.8 m from the trunk, in open view, and capture again",
+    )
+
+
+def no_trunk_round_balls(frame: GroundFrame) -> RegistrationFailed | None:
+    """The failure of balls round which no trunk stands, or None when one does.
+
+    The crew lays the balls round the trunk, so the trunk's low slice near their centre holds its bark,
+    or the grass and weeds that hide it. When the slice there holds nothing at all
+    (:attr:`GroundFrame.trunk_points` 0), the spheres taken for the balls lie out in the open, away from
+    the tree: look-alikes on the ground that every view saw (straw or soil bumps a low-resolution camera
+    sees as spheres). Their triangle agrees across the views and each lies near their own centre, which
+    stands in for the trunk; the region of interest centred there cuts the tree off (a camera of 252 px
+    focal length, 2080010: two look-alikes 1.1 and 2.4 m from the trunk, W 31 % narrow).
+    """
+    if frame.trunk_points > 0:
+        return None
+    return RegistrationFailed(
+        "no trunk stands round the spheres taken for the balls (nothing rises at a trunk's height near "
+        "their centre): they are probably things of the balls' colours lying away from the tree, which "
+        "every view saw, and no other choice of spheres lies round the trunk",
+        field="balls.max_trunk_distance_m",
+        hint="check with `canopy balls --preview` what was taken for each ball; lay the balls 0.3-0.8 m "
+        "from the trunk, in open view, and capture again",
     )
 
 

@@ -81,6 +81,9 @@ class GroundFrame:
     high."""
     trunk_xy_m: tuple[float, float]
     trunk_points: int
+    """How many points the trunk was found from: its bark's arc, or the whole low slice near the balls
+    (grass and weeds hiding the trunk) when no trunk-sized circle holds them; 0 when nothing stands at a
+    trunk's height near the balls, and ``trunk_xy_m`` is only the balls' centre."""
     ground_height_at_trunk_m: float
 
 

@@ -7,7 +7,7 @@ from collections.abc import Callable
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from canopy_core.ball_selection import ball_off_ground, balls_off_ground
+from canopy_core.ball_selection import ball_off_ground, balls_off_ground, no_trunk_round_balls
 from canopy_core.config import GroundConfig
 from canopy_core.ground import GroundFrame, fit_ground_frame, view_ground_plane, view_trunk_foot
 from canopy_core.register import apply, invert
@@ -166,3 +166,21 @@ def test_a_sphere_lying_lower_than_a_ball_tilts_the_balls_plane_and_is_named() -
     failure = balls_off_ground(frame, ("red", "yellow", "blue"), 0.05, "blue")
     assert "the blue ball's centre stands" in failure.message
     assert "where a ball's stands 0.05 m" in failure.message and "blue" in (failure.hint or "")
+
+
+def test_balls_laid_out_in_the_open_away_from_any_trunk_find_no_trunk_and_are_refused() -> None:
+    """Three spheres resting on open ground 2 m from the tree, as look-alikes that every view of a
+    low-resolution camera saw (2080010): nothing stands at a trunk's height round them, so their centre,
+    which stands in for the trunk, is no trunk, and the choice is refused; round the trunk it stands."""
+    rng = np.random.default_rng(2)
+    away = np.array([-1.6, -1.2]) + 0.5 * np.column_stack([np.cos([0.3, 2.4, 4.4]), np.sin([0.3, 2.4, 4.4])])
+    points_world, balls_world, _ = _scene(rng, ball_xy=away)
+    frame, _ = _fitted_frame(points_world, balls_world)
+    assert frame.trunk_points == 0
+    failure = no_trunk_round_balls(frame)
+    assert failure is not None and failure.field == "balls.max_trunk_distance_m"
+    assert "no trunk stands round the spheres taken for the balls" in failure.message
+
+    points_world, balls_world, _ = _scene(rng)
+    frame, _ = _fitted_frame(points_world, balls_world)
+    assert frame.trunk_points > 0 and no_trunk_round_balls(frame) is None
