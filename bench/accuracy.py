@@ -13,6 +13,7 @@ tape and pole, a different kind of number.
 
     .venv/bin/python bench/accuracy.py --scenario mixed --count 60 [--seed 2027] [--views 2] [--jobs 2]
     .venv/bin/python bench/accuracy.py --scenario all --count 10     # every family, one after another
+    .venv/bin/python bench/accuracy.py --scenario mixed --sensor azure-kinect-nfov-binned  # another camera
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ import numpy as np
 from canopy_core.errors import CanopyError
 from canopy_core.measure import Measurement, measure
 from canopy_core.simulate import Scenario, simulate_capture
+from canopy_core.simulate.camera import SENSORS
 
 METRICS = (("H", "height_m"), ("W", "width_m"), ("D", "thickness_m"))
 PAPER_MERGED_ARE = {"H": 2.5, "W": 3.6, "D": 3.2}
@@ -38,9 +40,9 @@ WRONG_SPHERE_M = 0.05
 """A ball chosen this far from the true ball's centre (in its view) is another sphere taken for it."""
 
 
-def _measure_one(args: tuple[Path, int, int, str]) -> dict:
-    folder, seed, views, scenario = args
-    capture = simulate_capture(folder, seed=seed, n_views=views, scenario=scenario)
+def _measure_one(args: tuple[Path, int, int, str, str]) -> dict:
+    folder, seed, views, scenario, sensor = args
+    capture = simulate_capture(folder, seed=seed, n_views=views, scenario=scenario, sensor=sensor)
     truth = json.loads((capture / "ground_truth.json").read_text())
     try:
         result = measure(capture)
@@ -130,17 +132,24 @@ def main() -> None:
     parser.add_argument("--views", type=int, default=2)
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--scenario", default="green", choices=[*(s.value for s in Scenario), "all"])
+    parser.add_argument("--sensor", default="kinect-v2", choices=list(SENSORS))
     parser.add_argument("--details", action="store_true", help="Print every tree's errors and failures.")
     options = parser.parse_args()
     scenarios = [s.value for s in Scenario] if options.scenario == "all" else [options.scenario]
     print(
-        f"{options.count} trees per family, {options.views} views each, seeds {options.seed * 1000} to "
-        f"{options.seed * 1000 + options.count - 1}"
+        f"{options.count} trees per family, {options.views} views each, {options.sensor}, seeds "
+        f"{options.seed * 1000} to {options.seed * 1000 + options.count - 1}"
     )
     for scenario in scenarios:
         with tempfile.TemporaryDirectory(prefix="canopy-bench-") as scratch:
             work = [
-                (Path(scratch) / f"tree_{i:03d}", options.seed * 1000 + i, options.views, scenario)
+                (
+                    Path(scratch) / f"tree_{i:03d}",
+                    options.seed * 1000 + i,
+                    options.views,
+                    scenario,
+                    options.sensor,
+                )
                 for i in range(options.count)
             ]
             with ProcessPoolExecutor(max_workers=options.jobs) as pool:

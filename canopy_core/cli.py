@@ -160,19 +160,28 @@ def simulate(
             "wires (trellis), weeds (weeds and suckers), harsh (hard sun, shadows), mixed (any of them)."
         ),
     ] = "green",
+    sensor: Annotated[
+        str,
+        typer.Option(
+            help="RGB-D sensor: kinect-v2, azure-kinect-nfov-binned (320x288 depth) or azure-kinect-nfov "
+            "(640x576 depth)."
+        ),
+    ] = "kinect-v2",
 ) -> None:
     """Write synthetic captures of procedural apple trees, each with its ground_truth.json."""
     require_extra("sim", "simulate")
     from canopy_core.simulate import simulate_captures
+    from canopy_core.simulate.camera import parse_sensor
     from canopy_core.simulate.scenario import parse_scenario
 
     try:
         family = parse_scenario(scenario)
+        parse_sensor(sensor)
     except ValueError as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from exc
     try:
-        paths = simulate_captures(out, seed=seed, count=count, n_views=views, scenario=family)
+        paths = simulate_captures(out, seed=seed, count=count, n_views=views, scenario=family, sensor=sensor)
     except FileExistsError as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from exc

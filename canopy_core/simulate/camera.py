@@ -1,4 +1,9 @@
-"""The simulated Kinect v2: its two cameras' intrinsics, the rigid map between them, and camera poses.
+"""The simulated RGB-D sensor: its two cameras' intrinsics, the rigid map between them, and camera poses.
+
+The sensor is a Kinect v2 by default; :data:`SENSORS` also holds Azure Kinect depth modes, whose other
+resolution and field of view (the balls a third or twice as many pixels) the detector must meet as well.
+Only the intrinsics differ: every sensor keeps the Kinect v2's time-of-flight noise (:mod:`.sensor`) and
+the colour camera's place beside the depth camera.
 
 Camera frames use OpenCV axes (x right, y down, z forward). The colour camera sits 5.2 cm to the right of
 the depth camera (+x in the depth camera's frame) with the same orientation, so ``depth_to_color``, which maps
@@ -16,18 +21,64 @@ from canopy_core.capture import Intrinsics
 
 __all__ = [
     "COLOR_BASELINE_M",
+    "SENSORS",
     "CameraPose",
     "KinectRig",
+    "Sensor",
     "camera_pose",
+    "parse_sensor",
     "project",
     "random_kinect_rig",
 ]
 
 COLOR_BASELINE_M = 0.052
 """Distance from the depth camera to the colour camera, to the depth camera's right."""
-_DEPTH_NOMINAL = Intrinsics(width=512, height=424, fx=365.0, fy=365.0, cx=256.0, cy=212.0)
-_COLOR_NOMINAL = Intrinsics(width=1920, height=1080, fx=1060.0, fy=1060.0, cx=960.0, cy=540.0)
 _FOCAL_JITTER = 0.02
+
+
+@dataclass(frozen=True)
+class Sensor:
+    """A model of RGB-D sensor: the nominal intrinsics of its depth and colour cameras (each simulated
+    unit's are jittered round them, as a factory calibration would find them)."""
+
+    name: str
+    """As ``capture.json`` names it, after ``simulated-``."""
+    depth: Intrinsics
+    color: Intrinsics
+
+
+_AZURE_COLOR = Intrinsics(width=1280, height=720, fx=605.0, fy=605.0, cx=640.0, cy=360.0)
+SENSORS = {
+    sensor.name: sensor
+    for sensor in (
+        Sensor(
+            "kinect-v2",
+            depth=Intrinsics(width=512, height=424, fx=365.0, fy=365.0, cx=256.0, cy=212.0),
+            color=Intrinsics(width=1920, height=1080, fx=1060.0, fy=1060.0, cx=960.0, cy=540.0),
+        ),
+        # The narrow field of view (75 x 65 degrees) binned 2 x 2: 0.69 times the Kinect v2's pixels per
+        # degree, so a ball at 3.5 m shows about 40 depth pixels.
+        Sensor(
+            "azure-kinect-nfov-binned",
+            depth=Intrinsics(width=320, height=288, fx=252.0, fy=252.0, cx=160.0, cy=144.0),
+            color=_AZURE_COLOR,
+        ),
+        Sensor(
+            "azure-kinect-nfov",
+            depth=Intrinsics(width=640, height=576, fx=504.0, fy=504.0, cx=320.0, cy=288.0),
+            color=_AZURE_COLOR,
+        ),
+    )
+}
+"""The sensors the simulator models, by name; ``kinect-v2`` is the default."""
+
+
+def parse_sensor(name: str) -> Sensor:
+    """The sensor of that name (ValueError naming the known ones otherwise)."""
+    try:
+        return SENSORS[name]
+    except KeyError:
+        raise ValueError(f"unknown sensor {name!r}: expected one of {', '.join(SENSORS)}") from None
 
 
 @dataclass(frozen=True, eq=False)
@@ -76,13 +127,14 @@ def _jittered(nominal: Intrinsics, rng: np.random.Generator, *, centre_jitter_px
     )
 
 
-def random_kinect_rig(rng: np.random.Generator) -> KinectRig:
-    """A Kinect v2 with its focal lengths within 2 % and principal points within a few pixels of nominal."""
+def random_kinect_rig(rng: np.random.Generator, sensor: Sensor = SENSORS["kinect-v2"]) -> KinectRig:
+    """One unit of ``sensor`` (a Kinect v2 by default), its focal lengths within 2 % and principal points
+    within a few pixels of nominal."""
     depth_to_color = np.eye(4)
     depth_to_color[0, 3] = -COLOR_BASELINE_M
     return KinectRig(
-        depth=_jittered(_DEPTH_NOMINAL, rng, centre_jitter_px=3.0),
-        color=_jittered(_COLOR_NOMINAL, rng, centre_jitter_px=8.0),
+        depth=_jittered(sensor.depth, rng, centre_jitter_px=3.0),
+        color=_jittered(sensor.color, rng, centre_jitter_px=8.0),
         depth_to_color=depth_to_color,
     )
 

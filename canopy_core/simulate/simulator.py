@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from canopy_core.capture import CameraModel
-from canopy_core.simulate.camera import random_kinect_rig
+from canopy_core.simulate.camera import Sensor, parse_sensor, random_kinect_rig
 from canopy_core.simulate.placement import place_balls_and_cameras
 from canopy_core.simulate.raycast import SceneRaycaster, ShadowCaster
 from canopy_core.simulate.scenario import (
@@ -55,6 +55,7 @@ def _simulate(
     native_color: bool,
     sun: float | None,
     scenario: Scenario,
+    sensor: Sensor,
 ) -> Path:
     check_empty(out_dir)
     # The first six streams are the plain scene's, as they always were; the seventh is the scenario's.
@@ -66,7 +67,7 @@ def _simulate(
     plan = plan_scenario(scenario, scenario_streams.plan)
     dressing = dress_orchard(build_orchard(orchard_rng, posts=not plan.wires), plan, scenario_streams)
     orchard = dressing.orchard
-    rig = random_kinect_rig(rig_rng)
+    rig = random_kinect_rig(rig_rng, sensor)
     sunlight = scenario_sunlight(plan, sun_rng, scenario_streams.light, sun)
     raycaster = SceneRaycaster.build(orchard.mesh, dressing.hanging_apples)
     layout = place_balls_and_cameras(
@@ -115,7 +116,11 @@ def _simulate(
     return write_capture(
         out_dir,
         labels=CaptureLabels(
-            orchard=ORCHARD_NAME, row=ROW_NAME, tree=tree, captured_at=_captured_at(label_rng)
+            orchard=ORCHARD_NAME,
+            row=ROW_NAME,
+            tree=tree,
+            captured_at=_captured_at(label_rng),
+            sensor=f"simulated-{sensor.name}",
         ),
         views=views,
         ground_truth=GroundTruth(
@@ -147,8 +152,9 @@ def simulate_capture(
     native_color: bool = True,
     sun: float | None = None,
     scenario: Scenario | str = Scenario.GREEN,
+    sensor: str = "kinect-v2",
 ) -> Path:
-    """Write one synthetic Kinect v2 capture of a simulated apple tree, with its ``ground_truth.json``.
+    """Write one synthetic RGB-D capture of a simulated apple tree, with its ``ground_truth.json``.
 
     Parameters
     ----------
@@ -168,6 +174,10 @@ def simulate_capture(
     scenario
         The scenario family (:class:`~canopy_core.simulate.scenario.Scenario` or its name): ``green``
         (the plain scene), ``dry``, ``fruit``, ``wires``, ``weeds``, ``harsh`` or ``mixed``.
+    sensor
+        The sensor's name (:data:`~canopy_core.simulate.camera.SENSORS`): ``kinect-v2``, or an Azure Kinect
+        depth mode, ``azure-kinect-nfov-binned`` (320x288) or ``azure-kinect-nfov`` (640x576), with a
+        1280x720 colour camera. ``native_color`` False registers colour to the depth image whatever it is.
 
     Returns
     -------
@@ -177,7 +187,7 @@ def simulate_capture(
     Raises
     ------
     ValueError
-        If ``n_views`` < 1, ``sun`` is outside [0, 1] or ``scenario`` names no family.
+        If ``n_views`` < 1, ``sun`` is outside [0, 1], or ``scenario`` or ``sensor`` names no such thing.
     FileExistsError
         If ``out_dir`` already holds files.
     """
@@ -190,11 +200,18 @@ def simulate_capture(
         native_color=native_color,
         sun=sun,
         scenario=family,
+        sensor=parse_sensor(sensor),
     )
 
 
 def simulate_captures(
-    out: Path, *, seed: int, count: int, n_views: int = 2, scenario: Scenario | str = Scenario.GREEN
+    out: Path,
+    *,
+    seed: int,
+    count: int,
+    n_views: int = 2,
+    scenario: Scenario | str = Scenario.GREEN,
+    sensor: str = "kinect-v2",
 ) -> list[Path]:
     """Write ``count`` synthetic captures ``out/tree_000``, ``out/tree_001``, ... of different trees.
 
@@ -215,6 +232,8 @@ def simulate_captures(
     scenario
         The scenario family of every capture (see :func:`simulate_capture`); in ``mixed`` each capture
         draws its own elements.
+    sensor
+        The sensor of every capture (see :func:`simulate_capture`).
 
     Returns
     -------
@@ -224,11 +243,12 @@ def simulate_captures(
     Raises
     ------
     ValueError
-        If ``count`` < 0, ``n_views`` < 1 or ``scenario`` names no family.
+        If ``count`` < 0, ``n_views`` < 1, or ``scenario`` or ``sensor`` names no such thing.
     """
     if count < 0:
         raise ValueError(f"count must not be negative, got {count}")
     family = _checked(n_views, None, scenario)
+    model = parse_sensor(sensor)
     seeds = [int(child.generate_state(1)[0]) for child in np.random.SeedSequence(seed).spawn(count)]
     return [
         _simulate(
@@ -239,6 +259,7 @@ def simulate_captures(
             native_color=True,
             sun=None,
             scenario=family,
+            sensor=model,
         )
         for index, tree_seed in enumerate(seeds)
     ]

@@ -29,9 +29,8 @@ from canopy_core.simulate.scene import BALL_COLORS, BALL_DIAMETER_M, Orchard
 from canopy_core.simulate.sensor import CameraResponse, SensorFrame, Sunlight
 from canopy_core.simulate.tree import TreeDimensions
 
-__all__ = ["SENSOR_NAME", "CaptureLabels", "GroundTruth", "SimulatedView", "check_empty", "write_capture"]
+__all__ = ["CaptureLabels", "GroundTruth", "SimulatedView", "check_empty", "write_capture"]
 
-SENSOR_NAME = "simulated-kinect-v2"
 _JPEG_QUALITY = 92
 
 
@@ -43,6 +42,8 @@ class CaptureLabels:
     row: str
     tree: str
     captured_at: str
+    sensor: str
+    """``simulated-`` and the sensor's name (``simulated-kinect-v2``)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -93,7 +94,6 @@ def _manifest_json(labels: CaptureLabels, views: Sequence[SimulatedView]) -> dic
     return {
         "format": CAPTURE_FORMAT,
         **dataclasses.asdict(labels),
-        "sensor": SENSOR_NAME,
         "calibration_balls": {"diameter_m": BALL_DIAMETER_M, "colors": list(BALL_COLORS)},
         "views": [view.name for view in views],
     }

@@ -212,3 +212,10 @@ def test_help_names_arguments_in_capitals_and_flags_without_a_type(command: str,
     assert done.returncode == 0
     assert f"Usage: canopy {command} [OPTIONS] {{{argument}}}" in done.stdout
     assert "<bool>" not in done.stdout
+
+
+def test_simulate_refuses_an_unknown_sensor_naming_the_known_ones(tmp_path: Path) -> None:
+    done = _run("simulate", str(tmp_path / "out"), "--sensor", "kinect-v3")
+    assert done.returncode == 2
+    assert "unknown sensor 'kinect-v3'" in done.stderr and "azure-kinect-nfov-binned" in done.stderr
+    assert not (tmp_path / "out").exists()

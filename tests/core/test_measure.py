@@ -597,3 +597,23 @@ def test_views_whose_best_trunk_circles_differ_register_when_each_sees_a_trunk_a
         for color in ("red", "yellow", "blue"):
             assert _ball_error_m(result, truth, view, color) < 0.02, (view, color)
     _assert_within_5_percent(result.merged, truth)
+
+
+def test_a_capture_of_an_azure_kinect_binned_depth_mode_is_measured_right(tmp_path: Path) -> None:
+    """Another sensor than the one the detector was built on: an Azure Kinect's narrow depth mode binned
+    2 x 2 (320 x 288, 252 px focal length: 0.69 times the Kinect v2's pixels per degree, a ball at 3.5 m
+    on about 40 pixels) with a 1280 x 720 colour camera, on a mixed scene (seed 2080005, straw, fallen
+    leaves). Nothing in the detector or the metrics counts on the Kinect v2's resolution."""
+    capture = simulate_capture(
+        tmp_path / "tree", seed=2080005, n_views=2, scenario="mixed", sensor="azure-kinect-nfov-binned"
+    )
+    loaded = load_capture(capture)
+    assert loaded.manifest.sensor == "simulated-azure-kinect-nfov-binned"
+    assert loaded.views[0].depth_raw.shape == (288, 320) and loaded.views[0].color_rgb.shape == (720, 1280, 3)
+    result = measure(capture)
+    _assert_within_5_percent(result.merged, _truth(capture))
+
+
+def test_an_unknown_sensor_is_refused_naming_the_known_ones(tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="unknown sensor 'kinect-v3': expected one of kinect-v2, "):
+        simulate_capture(tmp_path / "tree", seed=1, sensor="kinect-v3")
