@@ -378,7 +378,7 @@ def balls_and_frame(
         return choices, view_to_reference, ground
     named, failure = misplaced
     trunk_xy = np.array(ground.trunk_xy_m)
-    for color in dict.fromkeys((*([named] if named else []), *config.balls.colors)):
+    for color in dict.fromkeys((named, *config.balls.colors) if named else config.balls.colors):
         without = []
         for view, choice, pose in zip(candidates, choices, view_to_reference, strict=True):
             world_from_view = ground.world_from_reference @ pose
