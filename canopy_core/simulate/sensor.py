@@ -1,4 +1,6 @@
 """The Kinect v2 as a sensor: depth readings with its noise, flying pixels and dropout, and shaded colour.
+Every simulated sensor (:data:`~canopy_core.simulate.camera.SENSORS`) reads depth by this model; only
+their intrinsics differ.
 
 Depth model (a time-of-flight camera; sources and assumptions):
 

@@ -603,7 +603,7 @@ def test_a_capture_of_an_azure_kinect_binned_depth_mode_is_measured_right(tmp_pa
     """Another sensor than the one the detector was built on: an Azure Kinect's narrow depth mode binned
     2 x 2 (320 x 288, 252 px focal length: 0.69 times the Kinect v2's pixels per degree, a ball at 3.5 m
     on about 40 pixels) with a 1280 x 720 colour camera, on a mixed scene (seed 2080005, straw, fallen
-    leaves). Nothing in the detector or the metrics counts on the Kinect v2's resolution."""
+    leaves): the capture loads at its own sizes and is measured within 5 % of the truth."""
     capture = simulate_capture(
         tmp_path / "tree", seed=2080005, n_views=2, scenario="mixed", sensor="azure-kinect-nfov-binned"
     )
