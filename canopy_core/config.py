@@ -254,6 +254,23 @@ class WireConfig(_Section):
         "is seen, between its farthest sightings (hidden in a crown), and where something lies along it (the "
         "crowns it passes through); the rest is out of the cameras' view or lost to dropout.",
     )
+    scene_radius_m: float = Field(
+        3.0,
+        ge=0.0,
+        le=20.0,
+        description="A wire runs on from post to post: it is also sought in what the cameras see beyond the "
+        "region of interest, up to this far from the trunk, where it shows between the crown and the "
+        "neighbours (a Kinect v2 3.5 m away sees 2.4 m either side along the row). A line of leaves ends "
+        "with its crown. Below roi.radius_m, nothing beyond the region of interest is searched.",
+    )
+    scene_min_height_m: float = Field(
+        0.3,
+        ge=0.0,
+        description="Beyond the region of interest, where no ground is fitted, only points this high in the "
+        "ground frame are searched for wires: above the floor's tilt over scene_radius_m (16 cm at 3 degrees "
+        "and 3 m) and its scan lines, which a far, grazing view shows as level lines; below the lowest wire "
+        "of a trellis (0.4-0.8 m).",
+    )
 
 
 class FilterConfig(_Section):

@@ -7,13 +7,15 @@ Wires (:func:`find_wires`) are found first, because they join everything they pa
 along the row through the trunk line, so through the crown, and on to the posts and the neighbours. Each
 view shows it as a sparse, straight, nearly level line of points, a little off the other views' (mixed
 pixels, see :func:`wire_mask`), that crosses the whole cylinder, hidden where it runs through the crown;
-a branch is thicker, and ends inside the crown. So the first wire is sought by a Hough transform over
-level lines (direction, offset, height) among the points whose neighbourhood, in one view, is a thin line
-(local principal components), and when none is a wire, among the points in open air (no more round them
-than a line's: a wire above the crown, against the sky, that dropout breaks into pieces too short to look
-thin); the trellis's other wires run beside it, so they are sought parallel to it,
-among all the points with a sparse neighbourhood, and from each straight, level chain of thin-line
-points parallel to it (a wire the crown hides but for a short stretch). A line is a wire when it is
+a branch is thicker, and ends inside the crown. A wire also runs on beyond the cylinder, between the crown
+and the neighbours: lines seen there on both sides of the tree, in line, are wires, their direction and
+slope fixed over metres, and they are sought first. Failing that, the first wire is sought by a Hough
+transform over level lines (direction, offset, height) among the points whose neighbourhood, in one
+view, is a thin line (local principal components), and when none is a wire, among the points in open
+air (no more round them than a line's: a wire above the crown, against the sky, that dropout breaks into
+pieces too short to look thin). The trellis's other wires run beside the first, so they are sought
+parallel to it, among all the points with a sparse neighbourhood, and from each straight, level chain of
+thin-line points parallel to it (a wire the crown hides but for a short stretch). A line is a wire when it is
 nearly level, seen over a length that leaves and twigs never line up over, and crosses the cylinder: its
 own points and what hides it cover most of its chord; or when it stands free, nothing but itself within a
 neighbourhood's radius, seen along a fifth of its chord and between sightings half of it apart (against
@@ -207,6 +209,7 @@ def tree_component(
 def find_wires(
     views_m: Sequence[np.ndarray],
     *,
+    beyond_views_m: Sequence[np.ndarray] = (),
     cameras_m: Sequence[np.ndarray] | None = None,
     roi_radius_m: float,
     tolerance_m: float,
@@ -223,6 +226,11 @@ def find_wires(
         ``roi_radius_m`` round the z axis, ground removed. Thin lines are sought in each view alone: each
         view sees a wire as one line, but the views' lines stand apart by their mixed pixels (see
         :func:`wire_mask`), and two lines side by side are not thin.
+    beyond_views_m
+        Each view's points in the world frame beyond the cylinder's wall, above the ground (none when
+        empty). A wire seen there on both sides of the cylinder, in line, is the first wire
+        (:func:`_across_scene_wires`): it runs on from post to post, its direction and slope fixed over
+        metres, where a line of leaves ends with its crown.
     cameras_m
         Each view's camera centre in the world frame. A stretch of a wire's chord counts as covered when
         something stands between it and every camera (the crown hides it there); without the cameras,
@@ -312,54 +320,79 @@ def find_wires(
     def masked(pool: np.ndarray, wire: Wire) -> np.ndarray:
         return pool[~wire_mask(pool, [wire], tolerance_m=tolerance_m, spread_m=spread_m)]
 
-    # The first wire is sought among thin lines in any direction, the most evident first; when none is one,
-    # among lines in open air (a wire above a crown, or one seen through gaps in it, which dropout breaks
-    # into pieces too short to look thin), where it must stand free or be seen at both ends of its chord.
-    # Every line tried counts against the search's lines.
-    first: Wire | None = None
-    tries = 0
-    wall_to_wall = _wall_to_wall_wire(
+    def first_in_cylinder(thin_pool: np.ndarray) -> tuple[Wire | None, int, np.ndarray]:
+        """The first wire sought inside the cylinder alone, how many lines that tried, and the thin-line
+        pool without the lines tried and rejected.
+
+        It is sought among thin lines in any direction, the most evident first; when none is one, among
+        lines in open air (a wire above a crown, or one seen through gaps in it, which dropout breaks into
+        pieces too short to look thin), where it must stand free or be seen at both ends of its chord.
+        """
+        first: Wire | None = None
+        tries = 0
+        wall_to_wall = _wall_to_wall_wire(
+            thin_pool,
+            cells,
+            roi_radius_m=roi_radius_m,
+            tolerance_m=tolerance_m,
+            max_slope=max_slope,
+            min_coverage=min_coverage,
+            sight=sight,
+        )
+        for in_open_air in (False, True):
+            pool = open_pool if in_open_air else thin_pool
+            for _ in range(_FIRST_WIRE_TRIES):
+                members = _best_line(pool, tolerance_m=tolerance_m, roi_radius_m=roi_radius_m)
+                if members is None:
+                    break
+                tries += 1
+                wire, members = tried(pool, members, None)
+                if wire is not None and (
+                    not in_open_air
+                    or _stands_free(wire, cells, roi_radius_m=roi_radius_m, tolerance_m=tolerance_m)
+                    or _seen_at_both_walls(wire, pool[members], roi_radius_m=roi_radius_m)
+                ):
+                    first = wire
+                    break
+                pool = pool[~members]
+            if not in_open_air:
+                thin_pool = pool
+            if first is not None:
+                break
+        # A wire seen where it enters and where it leaves the cylinder settles the trellis's direction: a
+        # first wire that runs askew of it by more than the turn could correct took in leaves at the crown's
+        # edge (2058003: 13 degrees askew, W 17 % wide). One parallel to it may be another wire.
+        if first is not None:
+            first = _turned_to_cover(first, sparse_views, roi_radius_m=roi_radius_m, tolerance_m=tolerance_m)
+        if wall_to_wall is not None and (first is None or _askew(first, wall_to_wall) > _WIRE_MAX_TURN_DEG):
+            first = _turned_to_cover(
+                wall_to_wall, sparse_views, roi_radius_m=roi_radius_m, tolerance_m=tolerance_m
+            )
+        return first, tries, thin_pool
+
+    # Wires seen beyond the cylinder on both sides of it, in line, come first: nothing else runs straight
+    # and level across the scene (2082028: a line of leaves 5 degrees askew was taken for the first wire,
+    # the two wires it hid were missed, and W came out 12 % wide).
+    wires = _across_scene_wires(
+        [_cell_centroids(points, tolerance_m) for points in beyond_views_m if points.shape[0] >= 2],
         thin_pool,
         cells,
         roi_radius_m=roi_radius_m,
         tolerance_m=tolerance_m,
+        spread_m=spread_m,
         max_slope=max_slope,
         min_coverage=min_coverage,
         sight=sight,
     )
-    for in_open_air in (False, True):
-        pool = open_pool if in_open_air else thin_pool
-        for _ in range(_FIRST_WIRE_TRIES):
-            members = _best_line(pool, tolerance_m=tolerance_m, roi_radius_m=roi_radius_m)
-            if members is None:
-                break
-            tries += 1
-            wire, members = tried(pool, members, None)
-            if wire is not None and (
-                not in_open_air
-                or _stands_free(wire, cells, roi_radius_m=roi_radius_m, tolerance_m=tolerance_m)
-                or _seen_at_both_walls(wire, pool[members], roi_radius_m=roi_radius_m)
-            ):
-                first = wire
-                break
-            pool = pool[~members]
-        if not in_open_air:
-            thin_pool = pool
-        if first is not None:
-            break
-    # A wire seen where it enters and where it leaves the cylinder settles the trellis's direction: a first
-    # wire that runs askew of it by more than the turn could correct took in leaves at the crown's edge
-    # (2058003: 13 degrees askew, W 17 % wide). One parallel to it may be another wire of the trellis.
-    if first is not None:
-        first = _turned_to_cover(first, sparse_views, roi_radius_m=roi_radius_m, tolerance_m=tolerance_m)
-    if wall_to_wall is not None and (first is None or _askew(first, wall_to_wall) > _WIRE_MAX_TURN_DEG):
-        first = _turned_to_cover(
-            wall_to_wall, sparse_views, roi_radius_m=roi_radius_m, tolerance_m=tolerance_m
-        )
-    if first is None:
-        return []
-    wires: list[Wire] = [first]
-    thin_pool, sparse_pool = masked(thin_pool, first), masked(sparse_pool, first)
+    tries = len(wires)
+    if not wires:
+        found, tries, thin_pool = first_in_cylinder(thin_pool)
+        if found is None:
+            return []
+        wires = [found]
+    first = wires[0]
+    for known in wires:
+        thin_pool, sparse_pool = masked(thin_pool, known), masked(sparse_pool, known)
     # A line of leaves through the crown, parallel to the wires, must not claim first the mixed pixels
     # round a wire seen thin only beside the crown (2049045: a line 7 cm above the top wire took its 35 cm
     # beyond the crown, and W came out 12 % wide). So the trellis's other wires are sought parallel to the
@@ -730,6 +763,108 @@ def _wall_to_wall_wire(
         ):
             return wire
     return None
+
+
+def _across_scene_wires(
+    beyond_views_m: Sequence[np.ndarray],
+    thin_pool_m: np.ndarray,
+    cells_m: np.ndarray,
+    *,
+    roi_radius_m: float,
+    tolerance_m: float,
+    spread_m: float,
+    max_slope: float,
+    min_coverage: float,
+    sight: _SightLines | None,
+) -> list[Wire]:
+    """The wires seen beyond the cylinder on both sides of it, in line, that cross the cylinder as wires
+    (:func:`_crosses_as_wire`), the most seen first; none when there is no such wire.
+
+    ``beyond_views_m`` holds each view's cells beyond the cylinder's wall; ``thin_pool_m`` the thin-line
+    cells inside it. Beyond the wall, between the crown and the neighbours, a wire shows as straight,
+    level stretches of thin-line cells (:func:`_straight_stretches`) on either side of the tree; two such
+    stretches whose joining line runs through the cylinder, each within
+    :data:`_WIRE_STRETCH_MAX_TURN_DEG` of that line and rising along it by at most ``max_slope``, may be one
+    line strung across the scene: a wire's, whose direction and slope they fix over metres. Leaves and
+    twigs line up by chance over decimetres, inside one crown.
+
+    A stretch of one wire and one of another, a few decimetres higher, pair too, at a slope that a tilted
+    floor may make plausible (2082028: two wires 0.4 m apart sloping 2.9 degrees paired at 2.8 degrees the
+    other way). So each pair (at most :data:`_WIRE_MAX_LINES`, the longest stretches first) is fitted
+    (:func:`_fit_wire`) to the thin-line cells inside and beyond the cylinder, and the fits are tried in
+    order of the length they cover (stretches of :data:`_WIRE_BIN_M` holding a point within ``tolerance_m``):
+    a wire's fit covers its stretches end to end, a mismatched pair's crosses them. Once one is a wire, its
+    points (within ``spread_m`` across it) leave the search, and the next is sought parallel to it.
+    """
+    if not beyond_views_m:
+        return []
+    beyond = np.concatenate([view[_line_cells(view, tolerance_m)[1]] for view in beyond_views_m])
+    pool = np.concatenate([beyond, thin_pool_m])
+    is_beyond = np.arange(pool.shape[0]) < beyond.shape[0]
+    cosine = np.cos(np.radians(_WIRE_STRETCH_MAX_TURN_DEG))
+    wires: list[Wire] = []
+    while len(wires) < _WIRE_MAX_LINES:
+        stretches = _straight_stretches(pool[is_beyond], tolerance_m=tolerance_m)
+        on_beyond = np.flatnonzero(is_beyond)
+        centres = [pool[on_beyond[members]].mean(axis=0) for members, _ in stretches]
+        lengths = [float(np.ptp(pool[on_beyond[members], :2] @ along)) for members, along in stretches]
+        pairs: list[tuple[float, np.ndarray]] = []
+        for (i, (first, first_direction)), (j, (second, second_direction)) in itertools.combinations(
+            enumerate(stretches), 2
+        ):
+            joining = centres[j] - centres[i]
+            apart = float(np.linalg.norm(joining[:2]))
+            along = joining[:2] / apart
+            line = Wire(centres[i][:2], along, float(centres[i][2]), float(joining[2]) / apart)
+            chord = line.chord(roi_radius_m)
+            if chord is None or chord[0] < 0.0 or chord[1] > apart or abs(line.slope) > max_slope:
+                continue
+            if min(abs(float(first_direction @ along)), abs(float(second_direction @ along))) < cosine:
+                continue
+            if wires and (
+                _askew(line, wires[0]) > _WIRE_STRETCH_MAX_TURN_DEG
+                or abs(line.slope * float(along @ wires[0].direction_xy) - wires[0].slope) > max_slope
+            ):
+                continue
+            members = np.zeros(pool.shape[0], dtype=bool)
+            members[on_beyond[first | second]] = True
+            pairs.append((lengths[i] + lengths[j], members))
+        fitted: list[tuple[int, Wire]] = []
+        for _, pair in sorted(pairs, key=lambda item: -item[0])[:_WIRE_MAX_LINES]:
+            wire, members = _fit_wire(
+                pool,
+                pair,
+                roi_radius_m=roi_radius_m,
+                tolerance_m=tolerance_m,
+                direction_xy=wires[0].direction_xy if wires else None,
+            )
+            if wire is not None:
+                along_fit = (pool[members, :2] - wire.origin_xy_m) @ wire.direction_xy
+                fitted.append((np.unique(np.floor(along_fit / _WIRE_BIN_M)).size, wire))
+        crossing = next(
+            (
+                wire
+                for _, wire in sorted(fitted, key=lambda item: -item[0])
+                if _crosses_as_wire(
+                    wire,
+                    pool[wire.distance_m(pool) < _WIRE_VIEW_OFFSET_M],
+                    cells_m,
+                    roi_radius_m=roi_radius_m,
+                    max_slope=max_slope,
+                    min_coverage=min_coverage,
+                    first=None,
+                    sight=sight,
+                    tolerance_m=tolerance_m,
+                )
+            ),
+            None,
+        )
+        if crossing is None:
+            break
+        wires.append(crossing)
+        kept = ~wire_mask(pool, [crossing], tolerance_m=tolerance_m, spread_m=spread_m)
+        pool, is_beyond = pool[kept], is_beyond[kept]
+    return wires
 
 
 def _askew(wire: Wire, other: Wire) -> float:

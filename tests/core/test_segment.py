@@ -67,8 +67,9 @@ def test_isolated_specks_are_dropped() -> None:
 # pixels), hidden where it runs through the crown.
 
 ROI_RADIUS_M = 1.5
-WIRES = WireConfig().model_dump()
-"""The product's settings: tolerance, spread, the first wire's slope and its chord's coverage."""
+WIRES = WireConfig().model_dump(exclude={"scene_radius_m", "scene_min_height_m"})
+"""The product's settings: tolerance, spread, the first wire's slope and its chord's coverage (the points
+beyond the cylinder, which the scene settings choose, are each test's own)."""
 
 
 def _wire(
@@ -495,3 +496,54 @@ def test_a_wire_seen_only_at_both_walls_is_found_through_them_and_not_along_leav
     assert abs(np.degrees(np.arctan2(wire.direction_xy[1], wire.direction_xy[0]))) < 1.5
     for wall_x in (-1.4, 1.4):
         assert np.hypot(*wire.offsets_m(np.array([[wall_x, 0.0, wire_z]]))) < 0.04
+
+
+def _sloping_wire(
+    rng: np.random.Generator, *, z: float, y: float, slope_deg: float, x_range: tuple[float, float]
+) -> np.ndarray:
+    """One view's points of a wire rising ``slope_deg`` along x, at ``z`` where x is 0."""
+    points = _wire(rng, z=z, y=y, x_range=x_range)
+    points[:, 2] += np.tan(np.radians(slope_deg)) * points[:, 0]
+    return points
+
+
+def test_wires_seen_beyond_the_cylinder_win_over_a_line_of_leaves_askew_in_the_crown() -> None:
+    """Mixed seed 2082028, found on a held-out run of the accuracy benchmark: a wide crown hides two wires,
+    sloping 3 degrees against the ground frame, but for a few decimetres inside the cylinder's wall; leaves
+    in the crown line up over 0.9 m, 5 degrees askew and sloping the other way. Inside the cylinder that
+    line was the most evident: it was taken for the first wire, the wires were sought parallel to it and
+    missed, and W came out 12 % wide. Beyond the wall the wires run on to the neighbours, in line on both
+    sides of the tree, and now set the trellis before anything inside it is tried."""
+    rng = np.random.default_rng(26)
+    centre, radii = np.array([0.0, 0.0, 1.7]), np.array([1.45, 0.8, 0.9])
+    surfaces = _crown_surfaces(rng, list(centre), list(radii), 60000)
+    cameras = [np.array([0.0, -3.5, 1.3]), np.array([0.0, 3.5, 1.3])]
+    askew = np.radians(5.0)
+    along = np.arange(-0.45, 0.45, 0.008)
+    along = along[rng.random(along.size) < 0.7]
+    leaves = np.column_stack(
+        [along * np.cos(askew), 0.2 + along * np.sin(askew), 1.05 + np.tan(np.radians(3.0)) * along]
+    ) + rng.normal(0, 0.003, (along.size, 3))
+    heights, slope_deg = (1.14, 1.54), -3.0
+    views, beyond = [], []
+    for y, surface, trunk in zip((0.11, 0.09), surfaces, (_trunk(rng), _trunk(rng)), strict=True):
+        wires = [_sloping_wire(rng, z=z, y=y, slope_deg=slope_deg, x_range=(-3.0, 3.0)) for z in heights]
+        wires = [wire[np.linalg.norm((wire - centre) / radii, axis=1) > 1.0] for wire in wires]
+        seen = np.vstack([trunk, surface, *wires])
+        reach = np.hypot(seen[:, 0], seen[:, 1])
+        views.append(np.vstack([seen[reach < ROI_RADIUS_M], leaves]))
+        beyond.append(seen[reach >= ROI_RADIUS_M])
+
+    inside_only = find_wires(views, cameras_m=cameras, roi_radius_m=ROI_RADIUS_M, **WIRES)
+    found = find_wires(views, beyond_views_m=beyond, cameras_m=cameras, roi_radius_m=ROI_RADIUS_M, **WIRES)
+
+    def at_trunk(wire: Wire) -> float:
+        return wire.height_m - wire.slope * float(wire.origin_xy_m @ wire.direction_xy)
+
+    assert not any(abs(at_trunk(wire) - 1.14) < 0.02 for wire in inside_only)  # what was wrong
+    assert sorted(at_trunk(wire) for wire in found) == pytest.approx(heights, abs=0.02)
+    for wire in found:
+        assert abs(np.degrees(np.arctan2(wire.direction_xy[1], wire.direction_xy[0]))) < 1.0
+        assert np.degrees(np.arctan(wire.slope * np.sign(wire.direction_xy[0]))) == pytest.approx(
+            slope_deg, abs=0.5
+        )
