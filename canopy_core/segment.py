@@ -401,6 +401,8 @@ def find_wires(
     claimed = np.zeros(thin_pool.shape[0], dtype=bool)
     for stretch in _parallel_stretches(thin_pool, first, tolerance_m=tolerance_m):
         beside = None if stretch[claimed].any() else tried(thin_pool, stretch, first, stretch=True)[0]
+        if beside is not None and not _apart_from(beside, wires, roi_radius_m=roi_radius_m):
+            beside = None
         if beside is not None:
             wires.append(beside)
             claimed |= wire_mask(thin_pool, [beside], tolerance_m=tolerance_m, spread_m=spread_m)
@@ -410,7 +412,7 @@ def find_wires(
         if members is None:
             break
         wire, members = tried(sparse_pool, members, first)
-        if wire is None:
+        if wire is None or not _apart_from(wire, wires, roi_radius_m=roi_radius_m):
             sparse_pool = sparse_pool[~members]
         else:
             wires.append(wire)
@@ -865,6 +867,19 @@ def _across_scene_wires(
         kept = ~wire_mask(pool, [crossing], tolerance_m=tolerance_m, spread_m=spread_m)
         pool, is_beyond = pool[kept], is_beyond[kept]
     return wires
+
+
+def _apart_from(line: Wire, wires: Sequence[Wire], *, roi_radius_m: float) -> bool:
+    """Whether ``line`` stays more than :data:`_WIRE_VIEW_OFFSET_M` from each of ``wires`` all along its chord
+    through the cylinder of ``roi_radius_m``: closer, it is one of those wires' lines of mixed pixels, which
+    a coarse sensor's wide pixels spread farther than the search masks, not another wire: a trellis strings
+    its wires decimetres apart. Taken for a wire, such a line takes crown with it (binned Azure Kinect
+    2083003: a line 6 cm below the lower wire, with 14 mm pixels, took the crown's base, D 6.7 % low)."""
+    chord = line.chord(roi_radius_m)
+    if chord is None:
+        return True
+    along = line.at(np.linspace(chord[0], chord[1], int(np.ceil((chord[1] - chord[0]) / _WIRE_BIN_M)) + 1))
+    return all(float(np.hypot(*wire.offsets_m(along)).min()) > _WIRE_VIEW_OFFSET_M for wire in wires)
 
 
 def _askew(wire: Wire, other: Wire) -> float:

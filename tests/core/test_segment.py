@@ -547,3 +547,21 @@ def test_wires_seen_beyond_the_cylinder_win_over_a_line_of_leaves_askew_in_the_c
         assert np.degrees(np.arctan(wire.slope * np.sign(wire.direction_xy[0]))) == pytest.approx(
             slope_deg, abs=0.5
         )
+
+
+def test_a_line_of_mixed_pixels_hugging_a_wire_is_not_taken_for_another_wire() -> None:
+    """Binned Azure Kinect seed 2083003, found on a probe of a coarser sensor: its 14 mm pixels spread a
+    wire's mixed pixels into a second line 6 cm below it, which the search took for another wire, and the
+    crown's base went with it (D 6.7 % low). A trellis strings its wires decimetres apart: a line within
+    10 cm of a wire found is that wire's."""
+    rng = np.random.default_rng(27)
+    tree = _tree(rng)
+    views = _two_views(rng, tree, [1.5])
+    views[0] = np.vstack([views[0], _outside_crown(_wire(rng, z=1.44, y=0.03))])
+
+    found = find_wires(views, roi_radius_m=ROI_RADIUS_M, **WIRES)
+
+    # One wire, within the search's tolerance of the real one (its fit takes in some of the line below).
+    assert [wire.height_m - wire.slope * (wire.origin_xy_m @ wire.direction_xy) for wire in found] == (
+        pytest.approx([1.5], abs=WIRES["tolerance_m"])
+    )
