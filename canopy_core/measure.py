@@ -33,6 +33,7 @@ from canopy_core.ground import (
     GroundFrame,
     GroundPlane,
     ground_height_map,
+    horizontal_distance,
     view_ground_plane,
 )
 from canopy_core.metrics import (
@@ -274,7 +275,10 @@ def measure(
     trunk_xy = np.array(ground.trunk_xy_m)
     tree_masks, point_classes = _tree_masks(
         roi_points,
-        [beyond_roi_points(cloud, pose, config) for cloud, pose in zip(clouds, world_from_view, strict=True)],
+        [
+            _beyond_roi_points(cloud, pose, config)
+            for cloud, pose in zip(clouds, world_from_view, strict=True)
+        ],
         [pose[:3, 3] for pose in world_from_view],
         apply(ground.world_from_reference, centres[0]),
         trunk_xy,
@@ -430,12 +434,14 @@ def _ball_residual(pose: np.ndarray, centres: np.ndarray, reference: np.ndarray)
     return float(np.sqrt(np.mean(np.sum((apply(pose, centres) - reference) ** 2, axis=1))))
 
 
-def beyond_roi_points(cloud: ViewCloud, world_from_view: np.ndarray, config: MeasureConfig) -> np.ndarray:
+def _beyond_roi_points(cloud: ViewCloud, world_from_view: np.ndarray, config: MeasureConfig) -> np.ndarray:
     """A view's points beyond the region of interest where a trellis wire may show, in the world frame: from
     the cylinder's wall to ``wires.scene_radius_m`` from its axis, from ``wires.scene_min_height_m`` to
-    ``roi.max_height_m`` high. A wire runs on through them from post to post; a line of leaves does not."""
+    ``roi.max_height_m`` high. A wire runs on through them from post to post; a line of leaves does not.
+    Stray points are not filtered out here as inside the cylinder: only lines of thin-line cells are sought
+    among these, and a flying pixel stands alone."""
     world = apply(world_from_view, cloud.points_m)
-    reach = np.hypot(world[:, 0], world[:, 1])
+    reach = horizontal_distance(world, np.zeros(3), np.array([0.0, 0.0, 1.0]))
     beyond = (reach >= config.roi.radius_m) & (reach <= config.wires.scene_radius_m)
     beyond &= (world[:, 2] > config.wires.scene_min_height_m) & (world[:, 2] < config.roi.max_height_m)
     return world[beyond]
@@ -453,7 +459,7 @@ def _tree_masks(
     wires (each view's mixed pixels of a wire lie in the plane through the wire and its camera centre,
     ``cameras_m``, world frame), not intruders; and every point's :class:`PointClass` (tree, ground, ball,
     or other). ``beyond_points`` holds each view's points beyond the region of interest where the wires
-    run on (:func:`beyond_roi_points`).
+    run on (:func:`_beyond_roi_points`).
 
     The ground height map, the wires and the intruders are decided on all views together, where each is most
     complete. Wires go first: they join the crown to the posts and the neighbours they pass through.

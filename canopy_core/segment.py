@@ -113,8 +113,12 @@ _FREE_STANDING_SHARE = 0.9
 straight, level line with nothing round it (a wire above a crown, seen against the sky). The rest allows
 a stray flying pixel."""
 _WIRE_STRETCH_MAX_TURN_DEG = 10.0
-"""Such a chain runs within this angle of the wire found: its own direction, over a few cells of
-``tolerance_m``, errs by several degrees; the wire is then fitted along the found wire's direction."""
+"""Such a chain runs within this angle of the wire found (or, beyond the cylinder, of the line joining it
+to a chain on the tree's other side): its own direction, over a few cells of ``tolerance_m``, errs by
+several degrees; the wire is then fitted along the found wire's direction (or to both chains)."""
+_SCENE_PAIRS_TRIED = 10
+"""Most pairs of chains fitted for each wire sought across the scene, those of the longest chains first: a
+wire shows as one chain or a few on either side of the tree, and a trellis strings two to five."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -227,7 +231,7 @@ def find_wires(
         view sees a wire as one line, but the views' lines stand apart by their mixed pixels (see
         :func:`wire_mask`), and two lines side by side are not thin.
     beyond_views_m
-        Each view's points in the world frame beyond the cylinder's wall, above the ground (none when
+        Each view's points in the world frame beyond the cylinder's wall, clear of the floor (none when
         empty). A wire seen there on both sides of the cylinder, in line, is the first wire
         (:func:`_across_scene_wires`): it runs on from post to post, its direction and slope fixed over
         metres, where a line of leaves ends with its crown.
@@ -384,6 +388,7 @@ def find_wires(
         min_coverage=min_coverage,
         sight=sight,
     )
+    # Every line tried counts against the search's lines; each wire found across the scene as one.
     tries = len(wires)
     if not wires:
         found, tries, thin_pool = first_in_cylinder(thin_pool)
@@ -792,11 +797,16 @@ def _across_scene_wires(
 
     A stretch of one wire and one of another, a few decimetres higher, pair too, at a slope that a tilted
     floor may make plausible (2082028: two wires 0.4 m apart sloping 2.9 degrees paired at 2.8 degrees the
-    other way). So each pair (at most :data:`_WIRE_MAX_LINES`, the longest stretches first) is fitted
+    other way). So each pair (at most :data:`_SCENE_PAIRS_TRIED`, the longest stretches first) is fitted
     (:func:`_fit_wire`) to the thin-line cells inside and beyond the cylinder, and the fits are tried in
     order of the length they cover (stretches of :data:`_WIRE_BIN_M` holding a point within ``tolerance_m``):
-    a wire's fit covers its stretches end to end, a mismatched pair's crosses them. Once one is a wire, its
-    points (within ``spread_m`` across it) leave the search, and the next is sought parallel to it.
+    a wire's fit covers its stretches end to end, a mismatched pair's crosses them. A fit is judged as a
+    first wire is (:func:`_crosses_as_wire`, no wire given), on what lies within :data:`_WIRE_VIEW_OFFSET_M`
+    of it inside and beyond the cylinder: seen from wall to wall and beyond, it is seen over the open
+    span, and a line that stands free inside the cylinder need be seen along only a fifth of its chord
+    there. Once one is a wire, its points (within ``spread_m`` across it) leave the search, and the next is
+    sought parallel to it, sloping within ``max_slope`` of it and apart from every wire found
+    (:func:`_apart_from`: closer, it is one's mixed pixels).
     """
     if not beyond_views_m:
         return []
@@ -828,12 +838,12 @@ def _across_scene_wires(
                 or abs(line.slope * float(along @ wires[0].direction_xy) - wires[0].slope) > max_slope
             ):
                 continue
-            members = np.zeros(pool.shape[0], dtype=bool)
-            members[on_beyond[first | second]] = True
-            pairs.append((lengths[i] + lengths[j], members))
+            pair = np.zeros(pool.shape[0], dtype=bool)
+            pair[on_beyond[first | second]] = True
+            pairs.append((lengths[i] + lengths[j], pair))
         fitted: list[tuple[int, Wire]] = []
-        for _, pair in sorted(pairs, key=lambda item: -item[0])[:_WIRE_MAX_LINES]:
-            wire, members = _fit_wire(
+        for _, pair in sorted(pairs, key=lambda item: -item[0])[:_SCENE_PAIRS_TRIED]:
+            wire, near = _fit_wire(
                 pool,
                 pair,
                 roi_radius_m=roi_radius_m,
@@ -841,13 +851,15 @@ def _across_scene_wires(
                 direction_xy=wires[0].direction_xy if wires else None,
             )
             if wire is not None:
-                along_fit = (pool[members, :2] - wire.origin_xy_m) @ wire.direction_xy
+                along_fit = (pool[near, :2] - wire.origin_xy_m) @ wire.direction_xy
                 fitted.append((np.unique(np.floor(along_fit / _WIRE_BIN_M)).size, wire))
         crossing = next(
             (
                 wire
                 for _, wire in sorted(fitted, key=lambda item: -item[0])
-                if _crosses_as_wire(
+                if (not wires or abs(wire.slope - wires[0].slope) <= max_slope)
+                and _apart_from(wire, wires, roi_radius_m=roi_radius_m)
+                and _crosses_as_wire(
                     wire,
                     pool[wire.distance_m(pool) < _WIRE_VIEW_OFFSET_M],
                     cells_m,
@@ -878,8 +890,8 @@ def _apart_from(line: Wire, wires: Sequence[Wire], *, roi_radius_m: float) -> bo
     chord = line.chord(roi_radius_m)
     if chord is None:
         return True
-    along = line.at(np.linspace(chord[0], chord[1], int(np.ceil((chord[1] - chord[0]) / _WIRE_BIN_M)) + 1))
-    return all(float(np.hypot(*wire.offsets_m(along)).min()) > _WIRE_VIEW_OFFSET_M for wire in wires)
+    on_line = line.at(np.linspace(chord[0], chord[1], int(np.ceil((chord[1] - chord[0]) / _WIRE_BIN_M)) + 1))
+    return all(float(wire.distance_m(on_line).min()) > _WIRE_VIEW_OFFSET_M for wire in wires)
 
 
 def _askew(wire: Wire, other: Wire) -> float:

@@ -10,10 +10,20 @@ import numpy as np
 import pytest
 
 from canopy_core.alignment import align_views, check_trunk_agreement
+from canopy_core.backproject import ViewCloud
 from canopy_core.ball_selection import balls_off_trunk, far_ball
 from canopy_core.capture import load_capture
+from canopy_core.config import MeasureConfig
 from canopy_core.errors import BallNotFound, RegistrationFailed
-from canopy_core.measure import STAGES, Measurement, ball_evidence, config_for, filtered_cloud, measure
+from canopy_core.measure import (
+    STAGES,
+    Measurement,
+    _beyond_roi_points,
+    ball_evidence,
+    config_for,
+    filtered_cloud,
+    measure,
+)
 from canopy_core.metrics import CanopyMetrics
 from canopy_core.simulate import simulate_capture
 from tests.core.edits import paint_blue_grey, take_away_blue_ball
@@ -617,3 +627,33 @@ def test_a_capture_of_an_azure_kinect_binned_depth_mode_is_measured_right(tmp_pa
 def test_an_unknown_sensor_is_refused_naming_the_known_ones(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="unknown sensor 'kinect-v3': expected one of kinect-v2, "):
         simulate_capture(tmp_path / "tree", seed=1, sensor="kinect-v3")
+
+
+def test_the_wire_search_beyond_the_roi_gets_what_stands_clear_of_the_floor_out_to_its_reach() -> None:
+    """The points passed on to seek wires beyond the cylinder: past its wall, no farther from the trunk than
+    ``wires.scene_radius_m``, higher than ``wires.scene_min_height_m`` (the floor's scan lines are level
+    lines too) and lower than the region of interest's top; in the world frame."""
+    config = MeasureConfig()
+    points = np.array(
+        [
+            [1.0, 0.0, 1.5],  # inside the cylinder
+            [2.0, 0.5, 1.5],  # beyond its wall: kept
+            [0.0, -2.9, 0.9],  # beyond, near the reach: kept
+            [2.0, 0.0, 0.0],  # the floor beyond the wall
+            [3.5, 0.0, 1.5],  # past the reach
+            [2.0, 0.0, 5.5],  # above the top
+        ]
+    )
+    cloud = ViewCloud(
+        view="views/1",
+        points_m=points,
+        colors_rgb=np.zeros((6, 3), dtype=np.uint8),
+        has_color=np.ones(6, dtype=bool),
+        pixels=np.zeros((6, 2), dtype=np.int64),
+    )
+    world_from_view = np.eye(4)
+    world_from_view[:3, 3] = [0.0, 0.0, 0.2]  # the view's frame 20 cm under the world's
+
+    beyond = _beyond_roi_points(cloud, world_from_view, config)
+
+    np.testing.assert_allclose(beyond, [[2.0, 0.5, 1.7], [0.0, -2.9, 1.1]])

@@ -549,17 +549,23 @@ def test_wires_seen_beyond_the_cylinder_win_over_a_line_of_leaves_askew_in_the_c
         )
 
 
-def test_a_line_of_mixed_pixels_hugging_a_wire_is_not_taken_for_another_wire() -> None:
+@pytest.mark.parametrize("beyond_the_wall", [False, True])
+def test_a_line_of_mixed_pixels_hugging_a_wire_is_not_taken_for_another_wire(beyond_the_wall: bool) -> None:
     """Binned Azure Kinect seed 2083003, found on a probe of a coarser sensor: its 14 mm pixels spread a
     wire's mixed pixels into a second line 6 cm below it, which the search took for another wire, and the
     crown's base went with it (D 6.7 % low). A trellis strings its wires decimetres apart: a line within
-    10 cm of a wire found is that wire's."""
+    10 cm of a wire found is that wire's, whether it is sought inside the cylinder or across the scene
+    (where the line runs on beyond the wall beside the wire, 8.5 cm below it and 4 cm across)."""
     rng = np.random.default_rng(27)
     tree = _tree(rng)
-    views = _two_views(rng, tree, [1.5])
-    views[0] = np.vstack([views[0], _outside_crown(_wire(rng, z=1.44, y=0.03))])
+    x_range = (-3.0, 3.0) if beyond_the_wall else (-1.49, 1.49)
+    views = _two_views(rng, tree, [1.5], x_range=x_range)
+    below = (1.415, 0.04) if beyond_the_wall else (1.44, 0.03)
+    views[0] = np.vstack([views[0], _outside_crown(_wire(rng, z=below[0], y=below[1], x_range=x_range))])
+    inside = [view[np.hypot(view[:, 0], view[:, 1]) < ROI_RADIUS_M] for view in views]
+    beyond = [view[np.hypot(view[:, 0], view[:, 1]) >= ROI_RADIUS_M] for view in views]
 
-    found = find_wires(views, roi_radius_m=ROI_RADIUS_M, **WIRES)
+    found = find_wires(inside, beyond_views_m=beyond, roi_radius_m=ROI_RADIUS_M, **WIRES)
 
     # One wire, within the search's tolerance of the real one (its fit takes in some of the line below).
     assert [wire.height_m - wire.slope * (wire.origin_xy_m @ wire.direction_xy) for wire in found] == (
