@@ -820,8 +820,8 @@ def _across_scene_wires(
         on_beyond = np.flatnonzero(is_beyond)
         centres = [pool[on_beyond[members]].mean(axis=0) for members, _ in stretches]
         lengths = [float(np.ptp(pool[on_beyond[members], :2] @ along)) for members, along in stretches]
-        pairs: list[tuple[float, np.ndarray]] = []
-        for (i, (first, first_direction)), (j, (second, second_direction)) in itertools.combinations(
+        pairs: list[tuple[float, int, int]] = []
+        for (i, (_, first_direction)), (j, (_, second_direction)) in itertools.combinations(
             enumerate(stretches), 2
         ):
             joining = centres[j] - centres[i]
@@ -838,11 +838,11 @@ def _across_scene_wires(
                 or abs(line.slope * float(along @ wires[0].direction_xy) - wires[0].slope) > max_slope
             ):
                 continue
-            pair = np.zeros(pool.shape[0], dtype=bool)
-            pair[on_beyond[first | second]] = True
-            pairs.append((lengths[i] + lengths[j], pair))
+            pairs.append((lengths[i] + lengths[j], i, j))
         fitted: list[tuple[int, Wire]] = []
-        for _, pair in sorted(pairs, key=lambda item: -item[0])[:_SCENE_PAIRS_TRIED]:
+        for _, i, j in sorted(pairs, key=lambda item: -item[0])[:_SCENE_PAIRS_TRIED]:
+            pair = np.zeros(pool.shape[0], dtype=bool)
+            pair[on_beyond[stretches[i][0] | stretches[j][0]]] = True
             wire, near = _fit_wire(
                 pool,
                 pair,
