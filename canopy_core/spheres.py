@@ -170,8 +170,10 @@ def ransac_centre(
     else:
         scored = points
     # Most triples of a cluttered blob fit no sphere of this radius; draw extra so that enough remain.
-    triples = scored[rng.integers(0, scored.shape[0], size=(4 * iterations, 3))]
-    centres = _far_centres(triples, radius_m)[:iterations]
+    drawn = rng.integers(0, scored.shape[0], size=(4 * iterations, 3))
+    rows = np.ascontiguousarray(scored.T)
+    centres = _far_centres(rows[:, drawn[:, 0]], rows[:, drawn[:, 1]], rows[:, drawn[:, 2]], radius_m)
+    centres = centres[:iterations]
     if centres.shape[0] == 0:
         raise ValueError(f"no three points lie on a sphere of radius {radius_m} m")
     # Distances and facing through matrix products: |p - c|^2 = |p|^2 - 2 p.c + |c|^2, (p - c).p/|p|.
@@ -183,27 +185,38 @@ def ransac_centre(
     return centres[np.argmin(cost.sum(axis=1))]
 
 
-def _far_centres(triples: np.ndarray, radius_m: float) -> np.ndarray:
-    """Centres of the spheres of radius ``radius_m`` through point triples, the one farther from the camera.
+def _far_centres(a: np.ndarray, b: np.ndarray, c: np.ndarray, radius_m: float) -> np.ndarray:
+    """Centres of the spheres of radius ``radius_m`` through the point triples ``a``, ``b``, ``c`` (``(3, K)``
+    each: coordinates by row), the one farther from the camera, ``(M, 3)``; triples that no such sphere
+    passes through, or collinear ones, are dropped.
 
-    ``triples`` is ``(K, 3, 3)``; triples that no such sphere passes through, or collinear ones, are dropped.
+    Worked on rows of coordinates: the same sums on ``(K, 3)`` arrays stride across memory and cost several
+    times as much for the thousand triples of a fit.
     """
-    a, b, c = triples[:, 0], triples[:, 1], triples[:, 2]
     u, v = b - a, c - a
-    normal = np.cross(u, v)
-    normal_sq = np.einsum("ij,ij->i", normal, normal)
-    ok = normal_sq > 1e-18
-    u, v, a, normal, normal_sq = u[ok], v[ok], a[ok], normal[ok], normal_sq[ok]
-    to_circumcentre = (
-        np.einsum("ij,ij->i", u, u)[:, None] * np.cross(v, normal)
-        + np.einsum("ij,ij->i", v, v)[:, None] * np.cross(normal, u)
-    ) / (2.0 * normal_sq[:, None])
-    height_sq = radius_m**2 - np.einsum("ij,ij->i", to_circumcentre, to_circumcentre)
-    ok = height_sq >= 0.0
-    circumcentre = a[ok] + to_circumcentre[ok]
-    unit_normal = normal[ok] / np.sqrt(normal_sq[ok])[:, None]
-    away = np.where(np.einsum("ij,ij->i", unit_normal, circumcentre) >= 0.0, 1.0, -1.0)
-    return circumcentre + (away * np.sqrt(height_sq[ok]))[:, None] * unit_normal
+    normal = _cross(u, v)
+    normal_sq = _dot(normal, normal)
+    kept = np.flatnonzero(normal_sq > 1e-18)
+    u, v, a, normal = (each.take(kept, axis=1) for each in (u, v, a, normal))
+    normal_sq = normal_sq[kept]
+    to_circumcentre = (_dot(u, u) * _cross(v, normal) + _dot(v, v) * _cross(normal, u)) / (2.0 * normal_sq)
+    height_sq = radius_m**2 - _dot(to_circumcentre, to_circumcentre)
+    kept = np.flatnonzero(height_sq >= 0.0)
+    circumcentre = a.take(kept, axis=1) + to_circumcentre.take(kept, axis=1)
+    height_sq = height_sq[kept]
+    unit_normal = normal.take(kept, axis=1) / np.sqrt(normal_sq[kept])
+    away = np.where(_dot(unit_normal, circumcentre) >= 0.0, 1.0, -1.0)
+    return (circumcentre + away * np.sqrt(height_sq) * unit_normal).T
+
+
+def _dot(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Dot products of the columns of two ``(3, K)`` arrays, ``(K,)``."""
+    return u[0] * v[0] + u[1] * v[1] + u[2] * v[2]
+
+
+def _cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Cross products of the columns of two ``(3, K)`` arrays, ``(3, K)``."""
+    return np.stack([u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]])
 
 
 def sphere_inliers(
@@ -445,16 +458,13 @@ def _least_squares_sphere(
         while True:
             trial = sphere + step
             trial[3] = min(max(trial[3], lowest), highest)
+            if math.sqrt((trial - sphere) @ (trial - sphere)) < _CONVERGED_M:
+                return sphere  # converged: no step downhill longer than that is left to find
             trial_values, trial_offsets, trial_lengths = residuals(trial)
             trial_loss, trial_spread = loss(trial_values)
             if trial_loss <= current:
                 break
             step /= 2.0
-            if math.sqrt(step @ step) < _CONVERGED_M:
-                return sphere
-        moved = math.sqrt((trial - sphere) @ (trial - sphere))
         sphere, values, offsets, lengths = trial, trial_values, trial_offsets, trial_lengths
         current, spread = trial_loss, trial_spread
-        if moved < _CONVERGED_M:
-            break
     return sphere
