@@ -15,19 +15,29 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["plane_normals", "scatter_normals"]
+__all__ = ["neighbourhood_normals", "scatter_normals"]
 
 _CLOSE_EIGENVALUES = 1e-4
 """The two least eigenvalues of a scatter nearly coincide when they differ by less than this share of the
 largest: the closed form's eigenvector then loses digits, and LAPACK solves it."""
 
 
-def plane_normals(centred: np.ndarray) -> np.ndarray:
-    """The unit normal (of either sign) of the plane that best fits each of ``(N, K, 3)`` neighbourhoods,
-    whose points are centred on their mean (a point left out is all zeros); ``(N, 3)``.
+def neighbourhood_normals(points_m: np.ndarray, neighbours: np.ndarray) -> np.ndarray:
+    """The unit normal (of either sign) of the plane that best fits each neighbourhood: row i of the
+    ``(N, K)`` indices ``neighbours`` picks its points from ``points_m`` ``(M, 3)``; ``(N, 3)``.
 
-    The same as the eigenvector of the least eigenvalue of each scatter matrix (``numpy.linalg.eigh``)."""
-    return scatter_normals(centred.transpose(0, 2, 1) @ centred)
+    The same as the eigenvector of the least eigenvalue of each neighbourhood's scatter about its mean
+    (``numpy.linalg.eigh``). Each coordinate is gathered into its own ``(N, K)`` array: the scatter's
+    sums over ``(N, K, 3)`` arrays stride across memory and take about three times as long."""
+    centred = []
+    for axis in range(3):
+        coordinate = points_m[:, axis][neighbours]
+        centred.append(coordinate - coordinate.mean(axis=1, keepdims=True))
+    scatter = np.empty((neighbours.shape[0], 3, 3))
+    for i in range(3):
+        for j in range(i, 3):
+            scatter[:, i, j] = scatter[:, j, i] = np.einsum("nk,nk->n", centred[i], centred[j])
+    return scatter_normals(scatter)
 
 
 def scatter_normals(scatter: np.ndarray) -> np.ndarray:

@@ -29,7 +29,7 @@ from scipy.spatial.transform import Rotation
 
 from canopy_core.config import IcpConfig
 from canopy_core.errors import RegistrationFailed
-from canopy_core.normals import plane_normals
+from canopy_core.normals import neighbourhood_normals
 from canopy_core.register import apply, pose_change
 from canopy_core.voxels import occupied_voxels
 
@@ -124,9 +124,7 @@ def _thinned(points_m: np.ndarray, voxel_m: float) -> tuple[np.ndarray, np.ndarr
     thinned = sums / voxels.counts[:, None]
     neighbours = min(_NORMAL_NEIGHBOURS, thinned.shape[0])
     _, index = cKDTree(thinned).query(thinned, k=neighbours, workers=-1)
-    local = thinned[index.reshape(thinned.shape[0], neighbours)]
-    local -= local.mean(axis=1, keepdims=True)
-    return thinned, plane_normals(local)
+    return thinned, neighbourhood_normals(thinned, index.reshape(thinned.shape[0], neighbours))
 
 
 def anchored_icp(
