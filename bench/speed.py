@@ -6,7 +6,9 @@ and prints each time and the median; then the in-process time per stage of one r
 With ``--against REV`` the same capture is also measured by the code of git revision ``REV`` (checked out
 in a temporary worktree, run with this environment's packages), the two alternating run by run, and the
 ratio of the medians is printed: the honest way to compare two versions, since a shared or throttled
-machine's speed drifts by tens of per cent within an hour and by more from day to day.
+machine's speed drifts by tens of per cent within an hour and by more from day to day. Then each version's
+in-process time per stage (the median of ``--repeat`` runs in one process, after one to warm up) is printed
+side by side: where the two differ.
 
     .venv/bin/python bench/speed.py [--repeat 5] [--seed 1] [--against 73286c1]
 """
@@ -14,6 +16,7 @@ machine's speed drifts by tens of per cent within an hour and by more from day t
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import statistics
 import subprocess
@@ -35,7 +38,11 @@ def main() -> None:
     parser.add_argument(
         "--against", metavar="REV", help="Also time git revision REV, alternating with this code."
     )
+    parser.add_argument("--stages-of", type=Path, help=argparse.SUPPRESS)  # what _stage_times runs
     options = parser.parse_args()
+    if options.stages_of is not None:
+        print(json.dumps(_median_stages(options.stages_of, options.repeat)))
+        return
     with tempfile.TemporaryDirectory(prefix="canopy-speed-") as scratch:
         capture = simulate_capture(Path(scratch) / "tree", seed=options.seed, n_views=2, native_color=True)
         print("canopy measure --json, two-view Kinect v2 capture (512x424 depth, 1920x1080 colour)")
@@ -57,30 +64,73 @@ def main() -> None:
                 for _ in range(options.repeat):
                     runs["this code"].append(_timed_run(capture, source=None))
                     runs[options.against].append(_timed_run(capture, source=other))
+                stages = {
+                    "this code": _stage_times(capture, source=None, repeat=options.repeat),
+                    options.against: _stage_times(capture, source=other, repeat=options.repeat),
+                }
             finally:
                 subprocess.run([*worktree, "remove", "--force", str(other)], check=True)
             for name, times in runs.items():
                 _print_runs(name, times)
             ratio = statistics.median(runs["this code"]) / statistics.median(runs[options.against])
             print(f"this code / {options.against}: {ratio:.2f}")
-        result = measure(capture)
-        print("in-process stages (s): " + ", ".join(f"{k} {v:.3f}" for k, v in result.timings_s.items()))
+            _print_stages(stages)
+            return
+        stages_s = _median_stages(capture, options.repeat)
+        print("in-process stages (s): " + ", ".join(f"{k} {v:.3f}" for k, v in stages_s.items()))
+
+
+def _median_stages(capture: Path, repeat: int) -> dict[str, float]:
+    """Each stage's median in-process time over ``repeat`` measurements of ``capture``, seconds, after one
+    measurement to warm up (imports done, caches filled), and the total."""
+    measure(capture)
+    runs = [measure(capture).timings_s for _ in range(repeat)]
+    stages = {name: statistics.median(run.get(name, 0.0) for run in runs) for name in runs[0]}
+    return {**stages, "total": statistics.median(sum(run.values()) for run in runs)}
+
+
+def _stage_times(capture: Path, *, source: Path | None, repeat: int) -> dict[str, float]:
+    """:func:`_median_stages` of this code or of the source tree ``source``, in a process of its own."""
+    done = subprocess.run(
+        [sys.executable, __file__, "--stages-of", str(capture), "--repeat", str(repeat)],
+        check=True,
+        capture_output=True,
+        text=True,
+        env=_environment(source),
+    )
+    return dict(json.loads(done.stdout))
+
+
+def _print_stages(stages: dict[str, dict[str, float]]) -> None:
+    """The versions' in-process stage times side by side (a stage one version lacks shows as 0)."""
+    names = list(dict.fromkeys(name for times in stages.values() for name in times if name != "total"))
+    versions = list(stages)
+    print("in-process stages (s, median):")
+    print(f"  {'stage':<10}" + "".join(f"{version:>12}" for version in versions))
+    for name in [*names, "total"]:
+        print(f"  {name:<10}" + "".join(f"{stages[version].get(name, 0.0):>12.3f}" for version in versions))
 
 
 def _timed_run(capture: Path, *, source: Path | None) -> float:
     """Seconds one ``canopy measure --json`` takes, on this code or on the source tree ``source`` (put
     first on the import path, before the installed package)."""
     canopy = Path(sys.executable).with_name("canopy")
-    environment = dict(os.environ)
-    if source is not None:
-        environment["PYTHONPATH"] = os.pathsep.join(
-            filter(None, [str(source), environment.get("PYTHONPATH")])
-        )
+    environment = _environment(source)
     started = time.perf_counter()
     subprocess.run(
         [str(canopy), "measure", str(capture), "--json"], check=True, capture_output=True, env=environment
     )
     return time.perf_counter() - started
+
+
+def _environment(source: Path | None) -> dict[str, str]:
+    """This process's environment, with the source tree ``source`` (if any) first on the import path."""
+    environment = dict(os.environ)
+    if source is not None:
+        environment["PYTHONPATH"] = os.pathsep.join(
+            filter(None, [str(source), environment.get("PYTHONPATH")])
+        )
+    return environment
 
 
 def _print_runs(name: str, times: list[float]) -> None:
