@@ -1,16 +1,18 @@
 """Speed benchmark: wall time of ``canopy measure --json`` on a two-view native Kinect v2 capture.
 
 Runs the real command (process start, imports, loading, the whole pipeline, JSON output) ``--repeat`` times
-and prints each time and the median; then the in-process time per stage of one run.
+and prints each time and the median; then the in-process time per stage (the median of ``--repeat`` runs
+in one process, after one to warm up). The capture is the simulator's plain green scene, the reference of
+the speed figures since 2026-11-22; ``--scenario mixed`` times a cluttered orchard instead, whose balls
+take longer to find (many more spheres of their colours to weigh).
 
 With ``--against REV`` the same capture is also measured by the code of git revision ``REV`` (checked out
 in a temporary worktree, run with this environment's packages), the two alternating run by run, and the
 ratio of the medians is printed: the honest way to compare two versions, since a shared or throttled
 machine's speed drifts by tens of per cent within an hour and by more from day to day. Then each version's
-in-process time per stage (the median of ``--repeat`` runs in one process, after one to warm up) is printed
-side by side: where the two differ.
+in-process time per stage is printed side by side: where the two differ.
 
-    .venv/bin/python bench/speed.py [--repeat 5] [--seed 1] [--against 73286c1]
+    .venv/bin/python bench/speed.py [--repeat 5] [--seed 1] [--scenario green|mixed|...] [--against 73286c1]
 """
 
 from __future__ import annotations
@@ -26,7 +28,7 @@ import time
 from pathlib import Path
 
 from canopy_core.measure import measure
-from canopy_core.simulate import simulate_capture
+from canopy_core.simulate import Scenario, simulate_capture
 
 REPOSITORY = Path(__file__).resolve().parent.parent
 
@@ -36,6 +38,12 @@ def main() -> None:
     parser.add_argument("--repeat", type=int, default=5)
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument(
+        "--scenario",
+        default=Scenario.GREEN.value,
+        choices=[scenario.value for scenario in Scenario],
+        help="The simulated scene (default green, the issue's reference; mixed for a cluttered orchard).",
+    )
+    parser.add_argument(
         "--against", metavar="REV", help="Also time git revision REV, alternating with this code."
     )
     parser.add_argument("--stages-of", type=Path, help=argparse.SUPPRESS)  # what _stage_times runs
@@ -44,8 +52,13 @@ def main() -> None:
         print(json.dumps(_median_stages(options.stages_of, options.repeat)))
         return
     with tempfile.TemporaryDirectory(prefix="canopy-speed-") as scratch:
-        capture = simulate_capture(Path(scratch) / "tree", seed=options.seed, n_views=2, native_color=True)
-        print("canopy measure --json, two-view Kinect v2 capture (512x424 depth, 1920x1080 colour)")
+        capture = simulate_capture(
+            Path(scratch) / "tree", seed=options.seed, n_views=2, native_color=True, scenario=options.scenario
+        )
+        print(
+            "canopy measure --json, two-view Kinect v2 capture (512x424 depth, 1920x1080 colour), "
+            f"{options.scenario} scene, seed {options.seed}"
+        )
         if options.against is None:
             times = [_timed_run(capture, source=None) for _ in range(options.repeat)]
             _print_runs("this code", times)
