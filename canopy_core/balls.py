@@ -29,7 +29,7 @@ from canopy_core.backproject import ViewCloud
 from canopy_core.config import BallConfig
 from canopy_core.errors import BallNotFound
 from canopy_core.ground import GroundPlane
-from canopy_core.normals import scatter_normals
+from canopy_core.normals import scatter_about_mean, scatter_normals
 from canopy_core.spheres import SphereFit, ransac_centre, refine_sphere, sphere_coverage, sphere_inliers
 from canopy_core.voxels import occupied_voxels
 
@@ -739,20 +739,18 @@ class _Scene:
         a plane fit, which, unlike differences across the point, still holds where a neighbour on one side
         is hidden (a ball half in grass).
         """
-        # Worked coordinate by coordinate on (9, N) arrays, the neighbours of a point in one column: the same
-        # sums over (N, 9, 3) arrays stride across memory and take several times as long for 30 000 points.
         points = self.cloud.points_m
         rows, cols = self.cloud.pixels[indices, 0], self.cloud.pixels[indices, 1]
         depth = points[indices, 2]
         reach_px = _NORMAL_BASELINE * radius_m * self.focal_px[0] / depth
         step = np.clip(np.rint(reach_px), 1, _MAX_STEP_PX).astype(np.int64)
         height, width = self.point_at_pixel.shape
+        # The 9 neighbours of each point, a point to a column.
         window_rows = np.clip(rows + _NEIGHBOUR_OFFSETS[:, :1] * step, 0, height - 1)
         window_cols = np.clip(cols + _NEIGHBOUR_OFFSETS[:, 1:] * step, 0, width - 1)
         neighbours = self.point_at_pixel[window_rows, window_cols]
         seen = np.maximum(neighbours, 0)
-        offset_z = points[:, 2][seen] - depth
-        used = (neighbours >= 0) & (np.abs(offset_z) < radius_m)
+        used = (neighbours >= 0) & (np.abs(points[:, 2][seen] - depth) < radius_m)
         count = used.sum(axis=0)
         estimable = count >= _MIN_NORMAL_NEIGHBOURS
         indices, used, count, seen = (
@@ -761,17 +759,9 @@ class _Scene:
             count[estimable],
             seen[:, estimable],
         )
-        # The scatter about the neighbours' mean, from their offsets from the point (small numbers, so no
-        # digits are lost): the sum of the offsets' outer products less the outer product of their sum / n.
         centre = points[indices]
         offsets = [np.where(used, points[:, axis][seen] - centre[:, axis], 0.0) for axis in range(3)]
-        totals = [offset.sum(axis=0) for offset in offsets]
-        scatter = np.empty((indices.size, 3, 3))
-        for i in range(3):
-            for j in range(i, 3):
-                entry = (offsets[i] * offsets[j]).sum(axis=0) - totals[i] * totals[j] / count
-                scatter[:, i, j] = scatter[:, j, i] = entry
-        normals = scatter_normals(scatter)
+        normals = scatter_normals(scatter_about_mean(offsets, count))
         normals *= np.where(np.einsum("ij,ij->i", normals, centre) > 0.0, -1.0, 1.0)[:, None]
         return indices, normals
 

@@ -13,9 +13,11 @@ across it) the cross products vanish and the closed form is imprecise, so those 
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
-__all__ = ["neighbourhood_normals", "scatter_normals"]
+__all__ = ["neighbourhood_normals", "scatter_about_mean", "scatter_normals"]
 
 _CLOSE_EIGENVALUES = 1e-4
 """The two least eigenvalues of a scatter nearly coincide when they differ by less than this share of the
@@ -27,17 +29,28 @@ def neighbourhood_normals(points_m: np.ndarray, neighbours: np.ndarray) -> np.nd
     ``(N, K)`` indices ``neighbours`` picks its points from ``points_m`` ``(M, 3)``; ``(N, 3)``.
 
     The same as the eigenvector of the least eigenvalue of each neighbourhood's scatter about its mean
-    (``numpy.linalg.eigh``). Each coordinate is gathered into its own ``(N, K)`` array: the scatter's
-    sums over ``(N, K, 3)`` arrays stride across memory and take about three times as long."""
-    centred = []
-    for axis in range(3):
-        coordinate = points_m[:, axis][neighbours]
-        centred.append(coordinate - coordinate.mean(axis=1, keepdims=True))
-    scatter = np.empty((neighbours.shape[0], 3, 3))
+    (``numpy.linalg.eigh``), which is taken from the offsets of its points from its first."""
+    columns = neighbours.T
+    offsets = [points_m[:, axis][columns] - points_m[:, axis][columns[0]] for axis in range(3)]
+    return scatter_normals(scatter_about_mean(offsets, neighbours.shape[1]))
+
+
+def scatter_about_mean(offsets: Sequence[np.ndarray], count: np.ndarray | int) -> np.ndarray:
+    """The ``(N, 3, 3)`` scatter matrices about their mean of N neighbourhoods of ``count`` points each (one
+    count, or one per neighbourhood), given the x, y and z offsets of their points from a point near them:
+    three ``(K, N)`` arrays, a neighbourhood to a column, a point left out an offset of 0.
+
+    The sum of the offsets' outer products less the outer product of their sum over the count: offsets from
+    a nearby point are small numbers, so no digits are lost. Each coordinate in its own array, so that the
+    sums run along memory: over ``(N, K, 3)`` arrays they stride across it and take several times as long.
+    """
+    totals = [offset.sum(axis=0) for offset in offsets]
+    scatter = np.empty((offsets[0].shape[1], 3, 3))
     for i in range(3):
         for j in range(i, 3):
-            scatter[:, i, j] = scatter[:, j, i] = np.einsum("nk,nk->n", centred[i], centred[j])
-    return scatter_normals(scatter)
+            entry = (offsets[i] * offsets[j]).sum(axis=0) - totals[i] * totals[j] / count
+            scatter[:, i, j] = scatter[:, j, i] = entry
+    return scatter
 
 
 def scatter_normals(scatter: np.ndarray) -> np.ndarray:
