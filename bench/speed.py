@@ -10,7 +10,8 @@ With ``--against REV`` the same capture is also measured by the code of git revi
 in a temporary worktree, run with this environment's packages), the two alternating run by run, and the
 ratio of the medians is printed: the honest way to compare two versions, since a shared or throttled
 machine's speed drifts by tens of per cent within an hour and by more from day to day. Then each version's
-in-process time per stage is printed side by side: where the two differ.
+in-process time per stage (the median of ``--repeat`` measurements, each in a process of its own after one
+to warm up, the versions alternating) is printed side by side: where the two differ.
 
     .venv/bin/python bench/speed.py [--repeat 5] [--seed 1] [--scenario green|mixed|...] [--against 73286c1]
 """
@@ -44,10 +45,13 @@ def main() -> None:
     parser.add_argument(
         "--against", metavar="REV", help="Also time git revision REV, alternating with this code."
     )
-    parser.add_argument("--stages-of", type=Path, help=argparse.SUPPRESS)  # what _stage_times runs
+    parser.add_argument("--stages-of", type=Path, help=argparse.SUPPRESS)  # run by _stage_times
     options = parser.parse_args()
+    if options.repeat < 1:
+        parser.error("--repeat must be at least 1")
     if options.stages_of is not None:
-        print(json.dumps(_median_stages(options.stages_of, options.repeat)))
+        measure(options.stages_of)  # to warm up: imports done, caches filled
+        print(json.dumps(measure(options.stages_of).timings_s))
         return
     # Imported here, not above: the stage timings above run on another revision's package, which may
     # lack what this revision's simulator offers.
@@ -81,51 +85,55 @@ def main() -> None:
                 for _ in range(options.repeat):
                     runs["this code"].append(_timed_run(capture, source=None))
                     runs[options.against].append(_timed_run(capture, source=other))
-                stages = {
-                    "this code": _stage_times(capture, source=None, repeat=options.repeat),
-                    options.against: _stage_times(capture, source=other, repeat=options.repeat),
-                }
+                for name, times in runs.items():
+                    _print_runs(name, times)
+                ratio = statistics.median(runs["this code"]) / statistics.median(runs[options.against])
+                print(f"this code / {options.against}: {ratio:.2f}")
+                stage_runs: dict[str, list[dict[str, float]]] = {"this code": [], options.against: []}
+                for _ in range(options.repeat):  # alternated too, each in a process of its own
+                    stage_runs["this code"].append(_stage_times(capture, source=None))
+                    stage_runs[options.against].append(_stage_times(capture, source=other))
             finally:
                 subprocess.run([*worktree, "remove", "--force", str(other)], check=True)
-            for name, times in runs.items():
-                _print_runs(name, times)
-            ratio = statistics.median(runs["this code"]) / statistics.median(runs[options.against])
-            print(f"this code / {options.against}: {ratio:.2f}")
-            _print_stages(stages)
+            _print_stages({name: _median_stages(times) for name, times in stage_runs.items()})
             return
-        stages_s = _median_stages(capture, options.repeat)
-        print("in-process stages (s): " + ", ".join(f"{k} {v:.3f}" for k, v in stages_s.items()))
+        measure(capture)  # to warm up: imports done, caches filled
+        stages_s = _median_stages([measure(capture).timings_s for _ in range(options.repeat)])
+        print("in-process stages (s, median): " + ", ".join(f"{k} {v:.3f}" for k, v in stages_s.items()))
 
 
-def _median_stages(capture: Path, repeat: int) -> dict[str, float]:
-    """Each stage's median in-process time over ``repeat`` measurements of ``capture``, seconds, after one
-    measurement to warm up (imports done, caches filled), and the total."""
-    measure(capture)
-    runs = [measure(capture).timings_s for _ in range(repeat)]
-    stages = {name: statistics.median(run.get(name, 0.0) for run in runs) for name in runs[0]}
+def _median_stages(runs: list[dict[str, float]]) -> dict[str, float]:
+    """Each stage's median time over ``runs`` (each a measurement's ``timings_s``), seconds, and the
+    total's; a stage a run lacks counts 0."""
+    names = list(dict.fromkeys(name for run in runs for name in run))
+    stages = {name: statistics.median(run.get(name, 0.0) for run in runs) for name in names}
     return {**stages, "total": statistics.median(sum(run.values()) for run in runs)}
 
 
-def _stage_times(capture: Path, *, source: Path | None, repeat: int) -> dict[str, float]:
-    """:func:`_median_stages` of this code or of the source tree ``source``, in a process of its own."""
-    done = subprocess.run(
-        [sys.executable, __file__, "--stages-of", str(capture), "--repeat", str(repeat)],
-        check=True,
-        capture_output=True,
-        text=True,
-        env=_environment(source),
-    )
-    return dict(json.loads(done.stdout))
+def _stage_times(capture: Path, *, source: Path | None) -> dict[str, float]:
+    """One measurement's in-process time per stage, seconds, on this code or on the source tree
+    ``source``, in a process of its own after one measurement to warm up."""
+    try:
+        done = subprocess.run(
+            [sys.executable, __file__, "--stages-of", str(capture)],
+            check=True,
+            capture_output=True,
+            text=True,
+            env=_environment(source),
+        )
+    except subprocess.CalledProcessError as failed:
+        sys.exit(f"timing the stages of {source or 'this code'} failed:\n{failed.stderr[-2000:]}")
+    return dict(json.loads(done.stdout.strip().splitlines()[-1]))
 
 
 def _print_stages(stages: dict[str, dict[str, float]]) -> None:
     """The versions' in-process stage times side by side (a stage one version lacks shows as 0)."""
     names = list(dict.fromkeys(name for times in stages.values() for name in times if name != "total"))
-    versions = list(stages)
+    width = max(12, *(len(version) + 2 for version in stages))
     print("in-process stages (s, median):")
-    print(f"  {'stage':<10}" + "".join(f"{version:>12}" for version in versions))
+    print(f"  {'stage':<10}" + "".join(f"{version:>{width}}" for version in stages))
     for name in [*names, "total"]:
-        print(f"  {name:<10}" + "".join(f"{stages[version].get(name, 0.0):>12.3f}" for version in versions))
+        print(f"  {name:<10}" + "".join(f"{times.get(name, 0.0):>{width}.3f}" for times in stages.values()))
 
 
 def _timed_run(capture: Path, *, source: Path | None) -> float:

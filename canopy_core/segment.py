@@ -664,6 +664,8 @@ def _distinct(values: np.ndarray) -> np.ndarray:
     through a hash table, five to ten times slower on the Hough transform's hundreds of thousands of mostly
     distinct keys."""
     ordered = np.sort(values, axis=None)
+    if ordered.size == 0:
+        return ordered
     return ordered[np.concatenate(([True], ordered[1:] != ordered[:-1]))]
 
 

@@ -400,7 +400,8 @@ def _least_squares_sphere(
     J' rho'(z) J, converges linearly, in 10-20 steps; Newton's steps converge in 3-8. Where the Hessian is
     not positive definite (far from a minimum) the Gauss-Newton step is taken instead; a radius at its
     bound that the gradient pushes past stays there while the centre is solved alone. Each step is halved
-    until the loss falls, or until it is shorter than ``_CONVERGED_M``: then no step downhill is left.
+    until the loss falls; a step (after the radius' clamp) shorter than ``_CONVERGED_M`` is not taken, nor
+    its loss worked out: the fit has converged, and the sphere held is returned.
     """
     scale = tolerance_m / 2.0
     prior_slope = prior_weight * scale / (_RADIUS_PRIOR * nominal_radius_m)

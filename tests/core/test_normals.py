@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from canopy_core.normals import neighbourhood_normals
+from canopy_core.normals import neighbourhood_normals, scatter_about_mean
 
 
 def _neighbourhoods(seed: int) -> np.ndarray:
@@ -38,3 +38,38 @@ def test_closed_form_normals_are_the_least_variance_directions_lapack_finds() ->
     np.testing.assert_allclose(
         np.einsum("ij,ij->i", spread, normals[~planes]), eigenvalues[~planes, 0], atol=1e-9
     )
+
+
+def test_scatter_about_the_mean_counts_only_the_points_left_in() -> None:
+    """Offsets from a point near each neighbourhood, some points left out (offset 0, not counted): the
+    scatter is that of the points left in about their own mean, as ``balls._Scene.normals`` needs it."""
+    rng = np.random.default_rng(5)
+    count, size = 200, 9
+    points = rng.normal(scale=0.05, size=(size, count, 3))
+    kept = rng.random((size, count)) < 0.7
+    kept[:5] = True  # at least five points left in each
+    offsets = [np.where(kept, points[:, :, axis], 0.0) for axis in range(3)]
+
+    scatter = scatter_about_mean(offsets, kept.sum(axis=0))
+
+    for n in range(count):
+        inside = points[kept[:, n], n]
+        centred = inside - inside.mean(axis=0)
+        np.testing.assert_allclose(scatter[n], centred.T @ centred, atol=1e-15)
+
+
+def test_neighbourhood_normals_keep_their_digits_far_from_the_origin() -> None:
+    """Centimetre-sized neighbourhoods 500 m from the origin (a frame's coordinates can be large): the
+    normals are those of the same neighbourhoods at the origin, to 1e-12. Summed as raw coordinates, the
+    scatter would lose digits to the squares of 500 m and the normals turn by some 1e-9."""
+    centred = 0.01 * _neighbourhoods(seed=7)[:-1]
+    count, size, _ = centred.shape
+    neighbours = np.arange(count * size).reshape(count, size)
+    near = neighbourhood_normals(centred.reshape(-1, 3), neighbours)
+
+    far = neighbourhood_normals(centred.reshape(-1, 3) + np.array([500.0, -300.0, 20.0]), neighbours)
+
+    scatter = centred.transpose(0, 2, 1) @ centred
+    eigenvalues = np.linalg.eigvalsh(scatter)
+    planes = eigenvalues[:, 1] - eigenvalues[:, 0] > 1e-4 * eigenvalues[:, 2]
+    np.testing.assert_allclose(np.abs(np.einsum("ij,ij->i", near[planes], far[planes])), 1.0, atol=1e-12)
