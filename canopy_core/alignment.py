@@ -127,7 +127,21 @@ def align_views(
                     continue
                 agreeing.append(again)
     if not agreeing:
-        raise failure
+        # The balls sought about the one both views share first: where one view's fragments of clutter
+        # closed a triangle with the other's, two fragments at one turn about the shared ball may be the
+        # balls (2088013: each view shows two balls whole, not the same two; the circles took clutter).
+        try:
+            again = _aligned(
+                view_names, clouds, focal_px, candidates, grounds, config, shared_ball_first=True
+            )
+        except MeasurementError:
+            raise failure from None
+        if any(choice.placed_unseen for choice in again.choices) or not _within_refinement_bounds(
+            again, config.icp
+        ):
+            raise failure
+        check_trunk_agreement(again, clouds, grounds, config)
+        return again
     return min(agreeing, key=lambda alignment: _disagreement(alignment, config.icp))
 
 
@@ -300,10 +314,13 @@ def _aligned(
     config: MeasureConfig,
     *,
     refining: Callable[[], None] | None = None,
+    shared_ball_first: bool = False,
 ) -> Alignment:
     """One choice of balls carried through registration, the world frame, the regions of interest and ICP
-    (its reports not yet judged)."""
-    choices, view_to_reference, ground = balls_and_frame(clouds, candidates, grounds, config)
+    (its reports not yet judged); ``shared_ball_first`` as :func:`select_balls`."""
+    choices, view_to_reference, ground = balls_and_frame(
+        clouds, candidates, grounds, config, shared_ball_first=shared_ball_first
+    )
     colors = config.balls.colors
     centres = [np.array([choice.chosen[color].fit.center_m for color in colors]) for choice in choices]
     # A ball placed unseen holds no view to the others in ICP (it stands where they put it): NaN.
@@ -349,8 +366,11 @@ def balls_and_frame(
     candidates: list[ViewBallCandidates],
     grounds: list[GroundPlane | None],
     config: MeasureConfig,
+    *,
+    shared_ball_first: bool = False,
 ) -> tuple[list[BallChoice], list[np.ndarray], GroundFrame]:
-    """The balls chosen in each view, each view's pose in the reference view's frame, and the world frame.
+    """The balls chosen in each view, each view's pose in the reference view's frame, and the world frame
+    (``shared_ball_first`` as :func:`select_balls`).
 
     The crew lays the balls on the ground, 0.3-0.8 m from the trunk. When a ball comes out farther from it
     than ``balls.max_trunk_distance_m``, or off the ground round the balls (their plane tilted from the
@@ -371,7 +391,7 @@ def balls_and_frame(
         As :func:`select_balls`; RegistrationFailed naming the ball when no other choice lies round the
         trunk and on the ground.
     """
-    choices = select_balls(candidates, config.balls, grounds=grounds)
+    choices = select_balls(candidates, config.balls, grounds=grounds, shared_ball_first=shared_ball_first)
     view_to_reference, ground, balls_world = _registered(choices, clouds, config)
     misplaced = _misplaced_ball(balls_world, ground, config)
     if misplaced is None:
@@ -400,7 +420,7 @@ def balls_and_frame(
                 )
             )
         try:
-            again = select_balls(without, config.balls, grounds=grounds)
+            again = select_balls(without, config.balls, grounds=grounds, shared_ball_first=shared_ball_first)
         except MeasurementError:
             continue
         poses, frame, centres_world = _registered(again, clouds, config)

@@ -263,7 +263,11 @@ def choose_in_view(candidates: ViewBallCandidates, config: BallConfig) -> dict[s
 
 
 def select_balls(
-    views: Sequence[ViewBallCandidates], config: BallConfig, *, grounds: Sequence[GroundPlane | None]
+    views: Sequence[ViewBallCandidates],
+    config: BallConfig,
+    *,
+    grounds: Sequence[GroundPlane | None],
+    shared_ball_first: bool = False,
 ) -> list[BallChoice]:
     """Choose every view's balls jointly: on the ground, distinct, at the same mutual distances everywhere.
 
@@ -275,6 +279,11 @@ def select_balls(
         The balls' size, colours and thresholds (``max_ground_gap_m``, ``max_distance_mismatch_m``).
     grounds
         Each view's ground plane, or None where none was found (then no sphere is refused for floating).
+    shared_ball_first
+        Seek two views' missing balls together about the ball they share (:func:`_search_about_shared_ball`)
+        before any search that takes one view's evidence alone, not after them all: a second hypothesis,
+        for when the surfaces refused the balls chosen first (the circles' fragments of clutter closing a
+        triangle before the shared ball's turn was tried).
 
     Returns
     -------
@@ -300,17 +309,26 @@ def select_balls(
     # each ball is sought at the distance another view puts it from a ball this view has (which may
     # complete a triangle that places the rest), even where look-alikes of its colour were found; if that
     # fails too, where the trunk and the one ball two views share place it; then a ball a view does not
-    # show at all is placed, unseen, where two balls it shows and another view's triangle put it; and last,
-    # where no view has a triangle, a ball is sought where fragments of it in two views meet.
+    # show at all is placed, unseen, where two balls it shows and another view's triangle put it; then,
+    # where no view has a triangle, a ball is sought where fragments of it in two views meet. The last
+    # searches rescue captures every search before failed, and come last so that they cannot pre-empt one
+    # that succeeds: two views' missing balls sought together where a turn about the one ball both show
+    # lands each view's other ball on a ball of its colour in the other; and the balls sought at the
+    # distances the other views' less likely pairs show (a look-alike may outscore a ball there).
+    shared_ball = (_search_about_shared_ball, _search_where_placed)
     searches = (
         (
             _search_where_placed,
+            *(shared_ball if shared_ball_first else ()),
             _search_on_circles,
             _search_where_placed,
             _search_round_trunk,
             _search_where_placed,
             _place_hidden,
             _search_by_pair,
+            _search_where_placed,
+            *(() if shared_ball_first else shared_ball),
+            _search_on_circles_of_look_alikes,
             _search_where_placed,
         )
         if len(views) > 1 and len(config.colors) >= 3
@@ -388,9 +406,12 @@ def _search_on_circles(
     per_view: list[list[tuple[float, tuple[BallCandidate, ...]]]],
     grounds: Sequence[GroundPlane | None],
     config: BallConfig,
+    *,
+    likeliest: bool = True,
 ) -> list[list[BallCandidate]]:
     """Look for each of a view's balls at the distance another view shows between it and a ball this view
-    has: on a circle round that ball, at its height above the ground plane (:func:`_circles`). A sphere
+    has: on a circle round that ball, at its height above the ground plane (:func:`_circles`, drawn from
+    the other view's ``likeliest`` pair of spheres, or else its next likeliest pairs). A sphere
     found there (:meth:`ViewBallCandidates.sphere_near`, where the circle's points have the most surface
     support, :func:`_likeliest_on_circles`) joins the colour's shortlist.
 
@@ -411,7 +432,9 @@ def _search_on_circles(
             look_alikes = bool(shortlist.plausible[color])
             tries = [
                 found
-                for circle in _circles(target, color, shortlists, grounds, ground, config)
+                for circle in _circles(
+                    target, color, shortlists, grounds, ground, config, likeliest=likeliest
+                )
                 for found in _likeliest_on_circles(view, circle, color, ground, config)
             ]
             for estimate, reach, centre in tries:
@@ -497,6 +520,218 @@ def _search_round_trunk(
                     shortlist.plausible[color].append(found)
                     added[target].append(found)
     return added
+
+
+def _search_on_circles_of_look_alikes(
+    views: Sequence[ViewBallCandidates],
+    shortlists: list[_Shortlist],
+    per_view: list[list[tuple[float, tuple[BallCandidate, ...]]]],
+    grounds: Sequence[GroundPlane | None],
+    config: BallConfig,
+) -> list[list[BallCandidate]]:
+    """:func:`_search_on_circles` on the circles the other views' next likeliest pairs of spheres draw, for
+    when a look-alike outscores a ball there and every other search failed (2088010: views/1's likeliest
+    red sphere an apple 1.35 m from the red ball, and views/2 showing the red ball whole, its yellow and
+    blue balls half hidden). Last: each circle drawn from a look-alike's pair passes clutter where a
+    fragment may be found and close a triangle that agrees by construction, so these circles must not
+    pre-empt the stronger searches. Returns, per view, the spheres added."""
+    return _search_on_circles(views, shortlists, per_view, grounds, config, likeliest=False)
+
+
+def _search_about_shared_ball(
+    views: Sequence[ViewBallCandidates],
+    shortlists: list[_Shortlist],
+    per_view: list[list[tuple[float, tuple[BallCandidate, ...]]]],
+    grounds: Sequence[GroundPlane | None],
+    config: BallConfig,
+) -> list[list[BallCandidate]]:
+    """Look for two views' missing balls together, where the one ball both show and their grounds leave the
+    pose open by a turn about that ball's vertical: each view's ball of another colour, carried by the
+    turn, must land on a ball of its colour in the other view (:func:`_places_both_supported`); spheres
+    are fitted at both places (:meth:`ViewBallCandidates.sphere_near`), each kept if it lies as far from
+    the shared ball as its colour's ball in the other view, and found together they join their views'
+    shortlists.
+
+    For views that each see two balls whole but not the same two, the third a fragment in each (2088013:
+    views/1 shows the yellow and blue balls, views/2 the red and blue, each the other a third hidden in
+    grass 4 m away): the search on circles (:func:`_search_on_circles`) weighs each view alone, and clutter
+    along either circle outscores a fragment; two fragments at one turn are a pair clutter seldom makes. A
+    colour of which a view has likely spheres already (look-alikes) is taken only with its hue
+    (``min_color_score``). The shared ball is each view's likeliest sphere of its colour, seen well in
+    both (2088038: a yellow look-alike 2.5 m off, taken for it, placed clutter in both views at one turn);
+    every likely sphere of the other two colours takes part, the likeliest ``_MAX_SHARED_PAIRS``
+    combinations first. Returns, per view, the spheres added."""
+    del per_view  # one shared ball and one more per view suffice
+    added: list[list[BallCandidate]] = [[] for _ in views]
+    fitted: dict[tuple[int, str, bytes], BallCandidate | None] = {}
+
+    def sphere_at(
+        index: int, estimate: np.ndarray, color: str, *, reach: tuple[np.ndarray, np.ndarray, np.ndarray]
+    ) -> BallCandidate | None:
+        """The sphere near ``estimate`` in view ``index`` if it lies as far from the view's shared ball as
+        the other view's ball of ``color`` from its (``reach``: this view's shared ball, the other's ball
+        and the other's shared ball), within ``max_distance_mismatch_m``; the choice across views then
+        judges the whole triangle."""
+        key = (index, color, np.round(estimate, 3).tobytes())
+        if key not in fitted:
+            found = views[index].sphere_near(estimate, color, config)
+            look_alikes = bool(shortlists[index].plausible[color])
+            if found is not None and look_alikes and found.color_scores[color] < config.min_color_score:
+                found = None
+            fitted[key] = found
+        found = fitted[key]
+        shared_here, ball_there, shared_there = reach
+        if (
+            found is None
+            or abs(
+                float(np.linalg.norm(found.fit.center_m - shared_here))
+                - float(np.linalg.norm(ball_there - shared_there))
+            )
+            >= config.max_distance_mismatch_m
+        ):
+            return None
+        return found
+
+    for first, second in itertools.combinations(range(len(views)), 2):
+        pair_grounds = (grounds[first], grounds[second])
+        if pair_grounds[0] is None or pair_grounds[1] is None:
+            continue
+        for shared, mine, theirs in itertools.permutations(config.colors, 3):
+            here, there = shortlists[first].plausible, shortlists[second].plausible
+            # The ball both show is each view's likeliest sphere of its colour, the pivot of every turn: a
+            # look-alike of its colour taken for it turns the other balls onto clutter.
+            combinations = _likeliest_combinations(
+                [
+                    (here[mine], mine),
+                    (there[theirs], theirs),
+                    (here[shared][:1], shared),
+                    (there[shared][:1], shared),
+                ],
+                config,
+            )
+            for own, other, shared_here, shared_there in combinations:
+                if min(np.linalg.norm(own - shared_here), np.linalg.norm(other - shared_there)) < (
+                    config.diameter_m
+                ):
+                    continue
+                for place_first, place_second in _places_both_supported(
+                    (views[first], views[second]),
+                    (pair_grounds[0], pair_grounds[1]),
+                    (shared_here, shared_there),
+                    (own, other),
+                    (theirs, mine),
+                    config,
+                ):
+                    found_first = sphere_at(
+                        first, place_first, theirs, reach=(shared_here, other, shared_there)
+                    )
+                    found_second = (
+                        None
+                        if found_first is None
+                        else sphere_at(second, place_second, mine, reach=(shared_there, own, shared_here))
+                    )
+                    if found_first is None or found_second is None:
+                        continue
+                    for index, color, found in ((first, theirs, found_first), (second, mine, found_second)):
+                        known = shortlists[index].plausible[color]
+                        if not _listed_near(found.fit.center_m, known, config.radius_m):
+                            known.append(found)
+                            added[index].append(found)
+    return added
+
+
+def _likeliest_combinations(
+    options: list[tuple[list[BallCandidate], str]], config: BallConfig
+) -> list[tuple[np.ndarray, ...]]:
+    """The centres of each combination of one sphere from each of ``options`` (likely spheres, and the
+    colour they are scored for), seen (not placed unseen: those carry no surface), the likeliest
+    ``_MAX_SHARED_PAIRS`` by the product of their scores."""
+    scored = [
+        [(c.fit.center_m, c.score(color, radius_m=config.radius_m)) for c in spheres if not c.unseen]
+        for spheres, color in options
+    ]
+    combinations = [
+        (float(np.prod([score for _, score in combination])), tuple(centre for centre, _ in combination))
+        for combination in itertools.product(*scored)
+    ]
+    combinations.sort(key=lambda entry: -entry[0])
+    return [centres for _, centres in combinations[:_MAX_SHARED_PAIRS]]
+
+
+def _places_both_supported(
+    views: tuple[ViewBallCandidates, ViewBallCandidates],
+    grounds: tuple[GroundPlane, GroundPlane],
+    shared: tuple[np.ndarray, np.ndarray],
+    own: tuple[np.ndarray, np.ndarray],
+    colors: tuple[str, str],
+    config: BallConfig,
+) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Where two views' balls land in each other under the turns about a shared ball's vertical that both
+    places support best.
+
+    The shared ball's centres (``shared``, in each view) and the grounds' normals fix all of the motion
+    from the first view to the second but the turn about that vertical. Under each turn (every
+    ``_CIRCLE_STEP_RADII`` radii at the farther of the two balls carried), the second view's own ball
+    (``own[1]``) lands in the first view and the first's (``own[0]``) in the second; each place is weighed
+    by the surface support of a ball of its colour (``colors``: the first view's sought colour, then the
+    second's) in its view, also ``_CIRCLE_SLACK_M`` higher and lower (the floor is uneven). The turns
+    whose weaker place has any support (more points on a ball's surface there than inside it), best
+    first, at most ``_CIRCLE_TRIES``, each placing the first view's ball at least a radius from a better
+    turn's; per turn, the places. Any support, not ``min_completeness_where_placed``: a guess centimetres
+    off a fragment's centre sees less of it than the sphere fitted there holds (2088013: the red ball's
+    third in grass supports 0.11 at the turn that places it 5 cm off, where the sphere fitted holds 0.2);
+    the fits decide."""
+    frames = tuple(_level_frame(ground.normal) for ground in grounds)
+    reach = max(
+        float(np.linalg.norm((frames[0].T @ (own[0] - shared[0]))[:2])),
+        float(np.linalg.norm((frames[1].T @ (own[1] - shared[1]))[:2])),
+    )
+    if reach <= config.radius_m:
+        return []
+    angles = np.arange(0.0, 2 * np.pi, _CIRCLE_STEP_RADII * config.radius_m / reach)
+    cosines, sines = np.cos(angles), np.sin(angles)
+    # Level coordinates of each view's own ball about the shared one, turned by each angle into the other's.
+    local_first = frames[0].T @ (own[0] - shared[0])
+    local_second = frames[1].T @ (own[1] - shared[1])
+    into_second = np.column_stack(
+        [
+            cosines * local_first[0] - sines * local_first[1],
+            sines * local_first[0] + cosines * local_first[1],
+            np.full(angles.size, local_first[2]),
+        ]
+    )
+    into_first = np.column_stack(
+        [
+            cosines * local_second[0] + sines * local_second[1],
+            -sines * local_second[0] + cosines * local_second[1],
+            np.full(angles.size, local_second[2]),
+        ]
+    )
+    places = (shared[0] + into_first @ frames[0].T, shared[1] + into_second @ frames[1].T)
+    supports, best_places = [], []
+    for view, ground, place, color in zip(views, grounds, places, colors, strict=True):
+        up = ground.normal / np.linalg.norm(ground.normal)
+        shifted = np.concatenate([place + shift * up for shift in (0.0, -_CIRCLE_SLACK_M, _CIRCLE_SLACK_M)])
+        support = view.surface_support(shifted, config, color=color, ground=ground).reshape(3, -1)
+        best = support.argmax(axis=0)
+        supports.append(support.max(axis=0))
+        best_places.append(shifted.reshape(3, -1, 3)[best, np.arange(angles.size)])
+    weaker = np.minimum(supports[0], supports[1])
+    chosen: list[tuple[np.ndarray, np.ndarray]] = []
+    for index in np.argsort(-weaker, kind="stable"):
+        if weaker[index] <= 0.0 or len(chosen) == _CIRCLE_TRIES:
+            break
+        if all(np.linalg.norm(best_places[0][index] - first) >= config.radius_m for first, _ in chosen):
+            chosen.append((best_places[0][index], best_places[1][index]))
+    return chosen
+
+
+def _level_frame(up: np.ndarray) -> np.ndarray:
+    """An orthonormal frame (columns) whose third axis is ``up``: two level directions, then up."""
+    up = up / np.linalg.norm(up)
+    along = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 1.0, 0.0])
+    along /= np.linalg.norm(along)
+    return np.column_stack([along, np.cross(up, along), up])
 
 
 def _place_hidden(
@@ -730,40 +965,65 @@ def _circles(
     grounds: Sequence[GroundPlane | None],
     ground: GroundPlane,
     config: BallConfig,
+    *,
+    likeliest: bool,
 ) -> list[list[tuple[np.ndarray, float, np.ndarray]]]:
     """Circles to look for view ``target``'s ``color`` ball on: for each ball this view has (its likeliest
-    sphere) that another view shows together with ``color`` (their likeliest spheres), the circle of the
-    points at their distance from it, at the height above this view's ground plane that the other view's
-    ground puts it relative to that ball; sampled every ``_CIRCLE_STEP_RADII`` radii. Each point comes with
-    the distance it must keep from the ball's centre and that centre."""
+    sphere) and a pair of spheres another view shows of that colour and ``color``, the circle of the
+    points at the pair's distance from it, at the height above this view's ground plane that the other
+    view's ground puts it relative to that ball; sampled every ``_CIRCLE_STEP_RADII`` radii. Each point
+    comes with the distance it must keep from the ball's centre and that centre.
+
+    The pair is the other view's ``likeliest`` spheres of the two colours, or else its next likeliest
+    pairs (by the product of their scores, up to ``_CANDIDATES_PER_COLOR`` in all): a look-alike (a fallen
+    apple, straw) may outscore a ball there, and the circle drawn from it misses the ball. Not every pair:
+    each circle costs up to ``_CIRCLE_TRIES`` sphere fits, and a row of look-alikes pairs them by the
+    dozen."""
     normal = ground.normal / np.linalg.norm(ground.normal)
     axis_u = np.cross(normal, [1.0, 0.0, 0.0] if abs(normal[0]) < 0.9 else [0.0, 1.0, 0.0])
     axis_u /= np.linalg.norm(axis_u)
     axis_v = np.cross(normal, axis_u)
     circles: list[list[tuple[np.ndarray, float, np.ndarray]]] = []
     for other, (anchor, anchor_ground) in enumerate(zip(shortlists, grounds, strict=True)):
-        if other == target or not anchor.plausible[color]:
+        if other == target:
             continue
-        wanted = anchor.plausible[color][0].fit.center_m
         for known in config.colors:
-            if known == color or not anchor.plausible[known] or not shortlists[target].plausible[known]:
+            if known == color or not shortlists[target].plausible[known]:
                 continue
-            seen = anchor.plausible[known][0].fit.center_m
-            reach = float(np.linalg.norm(wanted - seen))
-            rise = (
-                0.0
-                if anchor_ground is None
-                else anchor_ground.height_of(wanted) - anchor_ground.height_of(seen)
-            )
-            if reach <= abs(rise):
+            if not anchor.plausible[color] or not anchor.plausible[known]:
                 continue
             centre = shortlists[target].plausible[known][0].fit.center_m
-            middle = centre + rise * normal
-            spread = float(np.sqrt(reach**2 - rise**2))
-            angles = np.arange(0.0, 2 * np.pi, _CIRCLE_STEP_RADII * config.radius_m / spread)
-            circles.append(
-                [(middle + spread * (np.cos(a) * axis_u + np.sin(a) * axis_v), reach, centre) for a in angles]
-            )
+            first = (anchor.plausible[color][0], anchor.plausible[known][0])
+            others = sorted(
+                (
+                    (wanted, seen)
+                    for wanted, seen in itertools.product(anchor.plausible[color], anchor.plausible[known])
+                    if wanted is not seen and not (wanted is first[0] and seen is first[1])
+                ),
+                key=lambda pair: (
+                    -pair[0].score(color, radius_m=config.radius_m)
+                    * pair[1].score(known, radius_m=config.radius_m)
+                ),
+            )[: _CANDIDATES_PER_COLOR - 1]
+            for wanted, seen in [first] if likeliest else others:
+                reach = float(np.linalg.norm(wanted.fit.center_m - seen.fit.center_m))
+                rise = (
+                    0.0
+                    if anchor_ground is None
+                    else anchor_ground.height_of(wanted.fit.center_m)
+                    - anchor_ground.height_of(seen.fit.center_m)
+                )
+                if reach <= abs(rise):
+                    continue
+                middle = centre + rise * normal
+                spread = float(np.sqrt(reach**2 - rise**2))
+                angles = np.arange(0.0, 2 * np.pi, _CIRCLE_STEP_RADII * config.radius_m / spread)
+                circles.append(
+                    [
+                        (middle + spread * (np.cos(a) * axis_u + np.sin(a) * axis_v), reach, centre)
+                        for a in angles
+                    ]
+                )
     return circles
 
 

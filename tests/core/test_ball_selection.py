@@ -12,9 +12,13 @@ from canopy_core.backproject import ViewCloud
 from canopy_core.ball_preview import ball_report
 from canopy_core.ball_selection import (
     _MAX_SHARED_PAIRS,
+    _assignments,
     _carried_round_trunk,
+    _search_about_shared_ball,
+    _search_on_circles,
     _shared_pairs,
     _Shortlist,
+    _shortlist,
     check_ball_spacing,
     choose_in_view,
     select_balls,
@@ -321,6 +325,104 @@ def test_a_ball_no_view_finds_is_found_where_fragments_in_two_views_meet() -> No
 
     for choice, truth in zip(chosen, (truth_1, truth_2), strict=True):
         assert choice.found_by_position == ("blue",) and choice.placed_unseen == ()
+        for color in COLORS:
+            assert np.linalg.norm(choice.chosen[color].fit.center_m - truth[color]) < 0.02, color
+
+
+def _each_shows_another_pair(*, red_in_view_1: bool) -> tuple[list[ViewBallCandidates], list[dict]]:
+    """View 1 shows the yellow and blue balls whole and a third of the red one (40 of its pixels, each
+    half a centimetre off; none at all unless ``red_in_view_1``), view 2 the red and blue balls whole and
+    a quarter of the yellow (35 pixels, 4 mm off): the views share only the blue ball whole."""
+    config = BallConfig()
+    if red_in_view_1:
+        first, truth_1 = _view(1, [], [], seed=7)
+        first = _fragment(first, truth_1["red"], keep=40, noise_m=0.005, seed=3)
+    else:
+        balls = [Sphere(_in_view(BALLS_WORLD[c], 1), 0.05, RGB[c]) for c in COLORS if c != "red"]
+        first = _render_view(balls, seed=7)
+        truth_1 = {c: np.asarray(_in_view(BALLS_WORLD[c], 1)) for c in COLORS}
+    second, truth_2 = _view(2, [], [], seed=8)
+    second = _fragment(second, truth_2["yellow"], keep=35, noise_m=0.004, seed=4)
+    views = [find_ball_candidates(first, config), find_ball_candidates(second, config)]
+    return views, [truth_1, truth_2]
+
+
+def test_two_views_sharing_one_ball_find_each_other_s_fragments_at_one_turn_about_it() -> None:
+    """Each view's fragment is too small a share of a ball to be one by itself. The blue ball and the
+    grounds fix the views' pose but for a turn about the blue ball's vertical; the turn that lands views/2's
+    red ball on red points in view 1 lands view 1's yellow ball on yellow points in view 2, and a sphere
+    found at both places is each view's missing ball."""
+    config = BallConfig()
+    views, truth = _each_shows_another_pair(red_in_view_1=True)
+    grounds = [_ground(1), _ground(2)]
+    shortlists = [
+        _shortlist(view, config, ground=ground) for view, ground in zip(views, grounds, strict=True)
+    ]
+    assert not shortlists[0].plausible["red"] and not shortlists[1].plausible["yellow"]
+
+    added = _search_about_shared_ball(
+        views, shortlists, [_assignments(s, config) for s in shortlists], grounds, config
+    )
+
+    ((red,), (yellow,)) = added
+    assert np.linalg.norm(red.fit.center_m - truth[0]["red"]) < 0.02
+    assert np.linalg.norm(yellow.fit.center_m - truth[1]["yellow"]) < 0.02
+    chosen = select_balls(views, config, grounds=grounds)
+    assert chosen[0].found_by_position == ("red",) and chosen[1].found_by_position == ("yellow",)
+    for choice, truth_of_view in zip(chosen, truth, strict=True):
+        for color in COLORS:
+            assert np.linalg.norm(choice.chosen[color].fit.center_m - truth_of_view[color]) < 0.02, color
+
+
+def test_one_view_s_fragment_alone_is_not_taken_at_a_turn_about_the_shared_ball() -> None:
+    """With no red point in view 1, no turn lands views/2's red ball on a sphere there: the yellow fragment
+    in view 2, which the same turn would take, is not added on its own."""
+    config = BallConfig()
+    views, _ = _each_shows_another_pair(red_in_view_1=False)
+    grounds = [_ground(1), _ground(2)]
+    shortlists = [
+        _shortlist(view, config, ground=ground) for view, ground in zip(views, grounds, strict=True)
+    ]
+
+    added = _search_about_shared_ball(
+        views, shortlists, [_assignments(s, config) for s in shortlists], grounds, config
+    )
+
+    assert added == [[], []]
+
+
+def test_a_ball_half_hidden_in_a_view_is_sought_on_the_circles_of_the_other_view_s_less_likely_pair() -> None:
+    """View 1 shows every ball, the red one's lower part hidden by grass, and a red sphere of the ball's
+    size lying on the ground 1.6 m from it (a look-alike the leaves hide in view 2) that scores higher.
+    View 2 shows only its red ball whole and fragments of the other two. The circles round views/2's red
+    ball at the distances view 1 shows between its likeliest spheres, the look-alike's, pass no ball; the
+    circles of view 1's next likeliest pairs, the red ball's, hold both fragments."""
+    look_alike_world = (0.9, 0.0, -0.6)
+    look_alike_1 = Sphere(_in_view(look_alike_world, 1), 0.05, RED)
+    red_1 = _in_view(BALLS_WORLD["red"], 1)
+    first, truth_1 = _view(1, [look_alike_1], [_hiding_lower_part(red_1, from_y_m=0.01)], seed=7)
+    look_alike_2 = Sphere(_in_view(look_alike_world, 2), 0.05, RED)
+    leaves = _hiding_lower_part(look_alike_2.center_m, from_y_m=-0.1)
+    second, truth_2 = _view(2, [look_alike_2], [leaves], seed=8)
+    second = _fragment(second, truth_2["yellow"], keep=35, noise_m=0.004, seed=4)
+    second = _fragment(second, truth_2["blue"], keep=30, noise_m=0.003, seed=5)
+    config = BallConfig()
+    views = [find_ball_candidates(first, config), find_ball_candidates(second, config)]
+    grounds = [_ground(1), _ground(2)]
+    shortlists = [
+        _shortlist(view, config, ground=ground) for view, ground in zip(views, grounds, strict=True)
+    ]
+    likeliest_red = shortlists[0].plausible["red"][0].fit.center_m
+    assert np.linalg.norm(likeliest_red - look_alike_1.center_m) < 0.01
+    assert not shortlists[1].plausible["yellow"] and not shortlists[1].plausible["blue"]
+    # What was wrong: only the likeliest pair drew circles, and no sphere lies on its circles in view 2.
+    per_view = [_assignments(s, config) for s in shortlists]
+    assert _search_on_circles(views, shortlists, per_view, grounds, config)[1] == []
+
+    chosen = select_balls(views, config, grounds=grounds)
+
+    assert chosen[1].found_by_position == ("yellow", "blue")
+    for choice, truth in zip(chosen, (truth_1, truth_2), strict=True):
         for color in COLORS:
             assert np.linalg.norm(choice.chosen[color].fit.center_m - truth[color]) < 0.02, color
 
