@@ -679,8 +679,8 @@ def _places_both_supported(
     first, at most ``_CIRCLE_TRIES``, each placing the first view's ball at least a radius from a better
     turn's; per turn, the places. Any support, not ``min_completeness_where_placed``: a guess centimetres
     off a fragment's centre sees less of it than the sphere fitted there holds (2088013: the red ball's
-    third in grass supports 0.11 at the turn that places it 5 cm off, where the sphere fitted holds 0.2);
-    the fits decide."""
+    third in grass supports 0.11 at the turn that places it 5 cm off, and the sphere fitted there is the
+    ball); the fits decide."""
     frames = tuple(_level_frame(ground.normal) for ground in grounds)
     reach = max(
         float(np.linalg.norm((frames[0].T @ (own[0] - shared[0]))[:2])),
@@ -979,10 +979,7 @@ def _circles(
     apple, straw) may outscore a ball there, and the circle drawn from it misses the ball. Not every pair:
     each circle costs up to ``_CIRCLE_TRIES`` sphere fits, and a row of look-alikes pairs them by the
     dozen."""
-    normal = ground.normal / np.linalg.norm(ground.normal)
-    axis_u = np.cross(normal, [1.0, 0.0, 0.0] if abs(normal[0]) < 0.9 else [0.0, 1.0, 0.0])
-    axis_u /= np.linalg.norm(axis_u)
-    axis_v = np.cross(normal, axis_u)
+    axis_u, axis_v, normal = _level_frame(ground.normal).T
     circles: list[list[tuple[np.ndarray, float, np.ndarray]]] = []
     for other, (anchor, anchor_ground) in enumerate(zip(shortlists, grounds, strict=True)):
         if other == target:
