@@ -496,18 +496,25 @@ def test_balls_chosen_again_when_the_first_choice_lies_off_the_ground(tmp_path: 
     _assert_within_5_percent(measure(capture).merged, _truth(capture))
 
 
-def test_balls_nearly_in_a_line_that_the_surfaces_turn_by_degrees_fail_the_registration(
+def test_balls_nearly_in_a_line_that_the_surfaces_turn_by_degrees_are_sought_again_about_the_shared_ball(
     tmp_path: Path,
 ) -> None:
     """Mixed seed 2037022, found by the accuracy benchmark: views/1 took two fragments of clutter for the
     red and yellow balls, and views/2 a look-alike for the yellow one in line with its other two; the
     triangles agreed, ICP would turn views/2 by 15 degrees (moving its balls only 35 mm), and W came out
-    74 % wide with no error. Now the registration fails, naming the view."""
+    74 % wide with no error; from 2026-11-25 the registration failed, naming the view. Since 2026-11-27
+    (seventh) the surfaces' refusal makes the balls be sought again about the blue ball both views show:
+    at one turn about it, views/1's red ball and, in views/2, the yellow sphere 23 cm from the yellow ball
+    that views/1 took for it too (a look-alike both views see at one place, a fixed point) are found
+    together, and that choice passes the bounds of a sound registration: the tree is measured right."""
     capture = simulate_capture(tmp_path / "tree", seed=2037022, n_views=2, scenario="mixed")
-    with pytest.raises(RegistrationFailed) as info:
-        measure(capture)
-    assert info.value.field == "icp.max_disagreement_deg"
-    assert info.value.view == "views/2"
+    truth = _truth(capture)
+    result = measure(capture)
+    assert result.views[0].balls_found_by_position == ("red",)
+    assert result.views[1].balls_found_by_position == ("yellow",)
+    assert _ball_error_m(result, truth, "views/1", "red") < 0.02
+    assert _ball_error_m(result, truth, "views/2", "blue") < 0.02
+    _assert_within_5_percent(result.merged, truth)
 
 
 def test_a_look_alike_the_surfaces_contradict_is_ruled_out_and_the_balls_chosen_again(tmp_path: Path) -> None:
