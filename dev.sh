@@ -91,6 +91,14 @@ case "${1:-}" in
         demo="$CANOPY_DATA_DIR/demo"
         rm -rf "$demo"
         "$VENV/bin/canopy" simulate "$demo" --seed 7 --count 1 >/dev/null
+        # Captured now: each run sends a new capture of the demo tree (the service keeps one capture per
+        # tree and time; the one an earlier run sent belongs to that run's key).
+        "$VENV/bin/python" - "$demo/tree_000/capture.json" <<'PY'
+import datetime, json, sys
+manifest = json.load(open(sys.argv[1]))
+manifest["captured_at"] = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
+json.dump(manifest, open(sys.argv[1], "w"), indent=2)
+PY
         if curl -s -o /dev/null "$server/healthz"; then
             echo "something already answers on $server (an earlier canopy up?); stop it or set CANOPY_PORT" >&2
             exit 1
@@ -104,6 +112,7 @@ case "${1:-}" in
         done
         key=$("$VENV/bin/canopy" keys create --scope capture --scope read --name dev.sh-run 2>/dev/null | tail -1)
         job=$(send_capture "$server" "$key" "$demo/tree_000")
+        [ -n "$job" ] || { echo "sending the demo capture to $server failed (see the service's log above)" >&2; exit 1; }
         echo "measurement job: $server$job"
         until curl -sf -H "Authorization: Bearer $key" "$server$job" | grep -qE '"state":"(succeeded|failed)"'; do
             sleep 0.2
