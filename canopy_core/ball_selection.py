@@ -632,11 +632,8 @@ def _search_about_shared_ball(
                     )
                     if found_first is None or found_second is None:
                         continue
-                    for index, color, found in ((first, theirs, found_first), (second, mine, found_second)):
-                        known = shortlists[index].plausible[color]
-                        if not _listed_near(found.fit.center_m, known, config.radius_m):
-                            known.append(found)
-                            added[index].append(found)
+                    _shortlist_new(shortlists, added, first, theirs, found_first, config)
+                    _shortlist_new(shortlists, added, second, mine, found_second, config)
     return added
 
 
@@ -832,11 +829,8 @@ def _search_by_pair(
                     found = _sphere_where_placed(views[target], carried, color, config)
                     if found is None:
                         continue
-                    for index, sphere in ((source, seen), (target, found)):
-                        known = shortlists[index].plausible[color]
-                        if not _listed_near(sphere.fit.center_m, known, config.radius_m):
-                            known.append(sphere)
-                            added[index].append(sphere)
+                    _shortlist_new(shortlists, added, source, color, seen, config)
+                    _shortlist_new(shortlists, added, target, color, found, config)
     return added
 
 
@@ -849,6 +843,22 @@ def _sphere_where_placed(
     if found is None or np.linalg.norm(found.fit.center_m - estimate_m) >= _PLACEMENT_TOLERANCE_M:
         return None
     return found
+
+
+def _shortlist_new(
+    shortlists: list[_Shortlist],
+    added: list[list[BallCandidate]],
+    index: int,
+    color: str,
+    sphere: BallCandidate,
+    config: BallConfig,
+) -> None:
+    """Put ``sphere`` on view ``index``'s shortlist of ``color`` and among the view's ``added`` spheres,
+    unless a sphere there lies within a radius of it (:func:`_listed_near`)."""
+    known = shortlists[index].plausible[color]
+    if not _listed_near(sphere.fit.center_m, known, config.radius_m):
+        known.append(sphere)
+        added[index].append(sphere)
 
 
 def _listed_near(centre_m: np.ndarray, listed: Sequence[BallCandidate], radius_m: float) -> bool:
@@ -991,18 +1001,8 @@ def _circles(
                 continue
             centre = shortlists[target].plausible[known][0].fit.center_m
             first = (anchor.plausible[color][0], anchor.plausible[known][0])
-            others = sorted(
-                (
-                    (wanted, seen)
-                    for wanted, seen in itertools.product(anchor.plausible[color], anchor.plausible[known])
-                    if wanted is not seen and not (wanted is first[0] and seen is first[1])
-                ),
-                key=lambda pair: (
-                    -pair[0].score(color, radius_m=config.radius_m)
-                    * pair[1].score(known, radius_m=config.radius_m)
-                ),
-            )[: _CANDIDATES_PER_COLOR - 1]
-            for wanted, seen in [first] if likeliest else others:
+            pairs = [first] if likeliest else _next_likeliest_pairs(anchor, color, known, first, config)
+            for wanted, seen in pairs:
                 reach = float(np.linalg.norm(wanted.fit.center_m - seen.fit.center_m))
                 rise = (
                     0.0
@@ -1022,6 +1022,28 @@ def _circles(
                     ]
                 )
     return circles
+
+
+def _next_likeliest_pairs(
+    anchor: _Shortlist,
+    color: str,
+    known: str,
+    first: tuple[BallCandidate, BallCandidate],
+    config: BallConfig,
+) -> list[tuple[BallCandidate, BallCandidate]]:
+    """A view's pairs of likely spheres of ``color`` and ``known`` after its likeliest pair ``first``, two
+    different spheres each, by the product of their scores, ``_CANDIDATES_PER_COLOR`` pairs with ``first``."""
+    pairs = [
+        (wanted, seen)
+        for wanted, seen in itertools.product(anchor.plausible[color], anchor.plausible[known])
+        if wanted is not seen and not (wanted is first[0] and seen is first[1])
+    ]
+    pairs.sort(
+        key=lambda pair: (
+            -pair[0].score(color, radius_m=config.radius_m) * pair[1].score(known, radius_m=config.radius_m)
+        )
+    )
+    return pairs[: _CANDIDATES_PER_COLOR - 1]
 
 
 def _placements(
