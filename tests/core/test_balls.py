@@ -114,6 +114,23 @@ def test_fit_sphere_keeps_the_centre_of_a_ball_5_percent_larger_than_nominal() -
     assert np.linalg.norm(fit.center_m - centre) < 0.002
 
 
+def test_the_free_radius_of_a_shallow_cap_stops_at_its_bound() -> None:
+    # A 20 degree cap of a sphere three times the ball's radius (a grass tuft, a mound): the free fit's radius
+    # runs to its bound, twice the nominal one. It reaches the bound and is held there while the centre is
+    # solved; clamped step by step instead, it crept towards it and stopped 0.1 um short after dozens of
+    # halved steps.
+    rng = np.random.default_rng(0)
+    centre, radius = np.array([0.1, 0.2, 3.3]), 0.15
+    directions = rng.normal(size=(20000, 3))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    towards_camera = -centre / np.linalg.norm(centre)
+    cap = (centre + radius * directions)[directions @ towards_camera > np.cos(np.radians(20))][:200]
+
+    fit = fit_sphere(_with_depth_noise(cap, 0.001, rng), radius_m=0.05)
+
+    assert fit.radius_m == 0.1
+
+
 def test_fit_sphere_is_deterministic_by_default() -> None:
     rng = np.random.default_rng(4)
     centre = np.array([0.1, 0.1, 3.0])
