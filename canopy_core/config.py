@@ -208,7 +208,12 @@ class BallConfig(BallSet):
 class RoiConfig(_Section):
     """Region of interest: a vertical cylinder around the trunk that holds the tree and nothing else."""
 
-    radius_m: float = Field(1.5, gt=0.0, le=20.0, description="Cylinder radius around the balls' axis, m.")
+    radius_m: float = Field(
+        1.5,
+        gt=0.0,
+        le=20.0,
+        description="Cylinder radius round the trunk (round the balls' centroid where no trunk is found), m.",
+    )
     max_height_m: float = Field(5.0, gt=0.0, le=50.0, description="Cylinder top above the ground, metres.")
     link_m: float = Field(
         0.15, gt=0.0, description="A gap wider than this separates the tree from other things in the ROI."

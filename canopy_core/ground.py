@@ -60,8 +60,9 @@ class GroundFrame:
     """The world frame found for a capture, and how it was found.
 
     ``world_from_reference`` maps the reference view's camera frame to the world: z up, y across the row
-    (away from the reference camera), x along it; origin below the balls' centroid at the ground height
-    of the trunk's base.
+    (away from the reference camera), x along it; origin at the trunk's foot where its bark was found
+    (``origin_at_trunk``), else below the balls' centroid at the ground height of the trunk's base. The
+    region of interest is the vertical cylinder round the origin.
     """
 
     world_from_reference: np.ndarray
@@ -85,6 +86,8 @@ class GroundFrame:
     (grass and weeds hiding the trunk) when no trunk-sized circle holds them; 0 when nothing stands at a
     trunk's height near the balls, and ``trunk_xy_m`` is only the balls' centre."""
     ground_height_at_trunk_m: float
+    origin_at_trunk: bool
+    """Whether the trunk was found on its bark and the origin stands at its foot (``trunk_xy_m`` then 0)."""
 
 
 def ball_plane(ball_centres: np.ndarray, *, up_hint: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -243,11 +246,16 @@ def fit_ground_frame(
             contact = centroid - ((centroid - plane_point) @ up) * up
     rotation = _world_rotation(up, forward_hint)
     ground_world = (points_m[ground] - contact) @ rotation.T
-    trunk_xy, trunk_points = _trunk_position(points_m, contact, rotation)
+    trunk_xy, trunk_points, on_bark = _trunk_position(points_m, contact, rotation)
     ground_height = _local_ground_height(ground_world, trunk_xy, config.trunk_radius_m)
+    # The origin is the trunk's foot where its bark was found: the region of interest, the cylinder round
+    # the origin, is then the tree's however the crew laid the balls round it (2089047: their centroid
+    # 0.38 m off the trunk left a branch tip 1.74 m from it, outside the 1.5 m cylinder; W 9.7 % narrow).
+    origin_xy = trunk_xy if on_bark else np.zeros(2)
     world_from_reference = np.eye(4)
     world_from_reference[:3, :3] = rotation
-    world_from_reference[:3, 3] = -rotation @ contact - np.array([0.0, 0.0, ground_height])
+    world_from_reference[:3, 3] = -rotation @ contact - np.array([*origin_xy, ground_height])
+    trunk_xy = trunk_xy - origin_xy
     residual = ground_world[:, 2] if ground_world.size else np.zeros(1)
     return GroundFrame(
         world_from_reference=world_from_reference,
@@ -258,6 +266,7 @@ def fit_ground_frame(
         ball_heights_m=tuple(float(height) for height in heights),
         trunk_xy_m=(float(trunk_xy[0]), float(trunk_xy[1])),
         trunk_points=trunk_points,
+        origin_at_trunk=on_bark,
         ground_height_at_trunk_m=float(ground_height),
     )
 
@@ -310,8 +319,9 @@ def _world_rotation(up: np.ndarray, forward_hint: np.ndarray) -> np.ndarray:
 
 def _trunk_position(
     points_m: np.ndarray, contact: np.ndarray, rotation: np.ndarray
-) -> tuple[np.ndarray, int]:
-    """Horizontal position of the trunk: the centre of the circle of a trunk's size that the most points of a
+) -> tuple[np.ndarray, int, bool]:
+    """Horizontal position of the trunk (the frame's with its origin at ``contact``), the points it was found
+    from, and whether on its bark: the centre of the circle of a trunk's size that the most points of a
     low slice near the balls' centroid lie on with nothing inside it (:func:`_bark_support`; seen from
     above, a trunk's bark is an arc or a ring, grass and weeds are scattered dots). The median of the slice,
     which grass and weeds pull aside, when no such circle is found."""
@@ -320,10 +330,12 @@ def _trunk_position(
     in_slice = (world[:, 2] > low) & (world[:, 2] < high)
     in_slice &= np.linalg.norm(world[:, :2], axis=1) < _TRUNK_SEARCH_RADIUS_M
     if np.count_nonzero(in_slice) < _TRUNK_MIN_POINTS:
-        return np.zeros(2), 0
+        return np.zeros(2), 0, False
     xy = world[in_slice, :2]
     found = _bark_circle(xy)
-    return found if found is not None else (np.median(xy, axis=0), int(xy.shape[0]))
+    if found is None:
+        return np.median(xy, axis=0), int(xy.shape[0]), False
+    return found[0], found[1], True
 
 
 def view_trunk_foot(

@@ -153,6 +153,7 @@ class Measurement:
                     "ball_heights_m": dict(zip(self.config.balls.colors, ground.ball_heights_m, strict=True)),
                     "trunk_xy_m": list(ground.trunk_xy_m),
                     "trunk_points": ground.trunk_points,
+                    "origin_at_trunk": ground.origin_at_trunk,
                     "ground_height_at_trunk_m": ground.ground_height_at_trunk_m,
                 },
                 "views": {view.view: view.to_dict() for view in self.views},
