@@ -28,7 +28,6 @@ from canopy_core.ground import (
     GroundFrame,
     GroundPlane,
     fit_ground_frame,
-    horizontal_distance,
     sees_trunk_near,
     view_trunk_foot,
 )
@@ -329,8 +328,12 @@ def _aligned(
         for choice, view_centres in zip(choices, centres, strict=True)
     ]
     world_from_view = [ground.world_from_reference @ pose for pose in view_to_reference]
+    # ICP works on the low band of the cylinder round the balls (the origin), where they and the floor
+    # between them hold the views together; the tree is measured in the cylinder round its trunk.
+    measured_in = ground.round_trunk()
+    trunk_xy = np.array(ground.trunk_xy_m) if measured_in.origin_at_trunk else np.zeros(2)
     roi = [
-        _roi_cloud(cloud, pose, focal, config)
+        _roi_cloud(cloud, pose, focal, config, axes_xy=(np.zeros(2), trunk_xy))
         for cloud, pose, focal in zip(clouds, world_from_view, focal_px, strict=True)
     ]
     roi_points = [points for points, _, _ in roi]
@@ -340,7 +343,13 @@ def _aligned(
     if config.icp.enabled and len(clouds) > 1:
         corrections, reports = refine_views(
             list(view_names),
-            [points[points[:, 2] < config.icp.max_height_m] for points in roi_points],
+            [
+                points[
+                    (points[:, 2] < config.icp.max_height_m)
+                    & (np.linalg.norm(points[:, :2], axis=1) < config.roi.radius_m)
+                ]
+                for points in roi_points
+            ],
             view_anchors_m=[apply(pose, a) for pose, a in zip(world_from_view, anchors, strict=True)],
             found_by_position=[_loose(choice) for choice in choices],
             config=config.icp,
@@ -349,13 +358,16 @@ def _aligned(
         world_from_view = [c @ pose for c, pose in zip(corrections, world_from_view, strict=True)]
         by_view = {report.view: report for report in reports}
         icp = [by_view.get(name) for name in view_names]
+    to_trunk = measured_in.world_from_reference @ np.linalg.inv(ground.world_from_reference)
+    roi_points = [apply(to_trunk, points) for points in roi_points]
+    in_tree_roi = [np.linalg.norm(points[:, :2], axis=1) < config.roi.radius_m for points in roi_points]
     return Alignment(
         choices=choices,
         view_to_reference=view_to_reference,
-        ground=ground,
-        world_from_view=world_from_view,
-        roi_points_m=roi_points,
-        roi_colors_rgb=[colors_rgb for _, colors_rgb, _ in roi],
+        ground=measured_in,
+        world_from_view=[to_trunk @ pose for pose in world_from_view],
+        roi_points_m=[points[inside] for points, inside in zip(roi_points, in_tree_roi, strict=True)],
+        roi_colors_rgb=[colors[inside] for (_, colors, _), inside in zip(roi, in_tree_roi, strict=True)],
         stray_points_removed=[dropped for _, _, dropped in roi],
         icp=icp,
     )
@@ -495,14 +507,20 @@ def _ground_frame(
 
 
 def _roi_cloud(
-    cloud: ViewCloud, world_from_view: np.ndarray, focal_px: float, config: MeasureConfig
+    cloud: ViewCloud,
+    world_from_view: np.ndarray,
+    focal_px: float,
+    config: MeasureConfig,
+    *,
+    axes_xy: Sequence[np.ndarray],
 ) -> tuple[np.ndarray, np.ndarray, int]:
-    """A view's points inside the region of interest, in the world frame, without stray points."""
+    """A view's points inside the regions of interest (the vertical cylinders of ``roi.radius_m`` round
+    each of ``axes_xy``, below ``roi.max_height_m``), in the world frame, without stray points."""
     world = apply(world_from_view, cloud.points_m)
-    up = np.array([0.0, 0.0, 1.0])
-    inside = (horizontal_distance(world, np.zeros(3), up) < config.roi.radius_m) & (
-        world[:, 2] < config.roi.max_height_m
-    )
+    inside = np.zeros(world.shape[0], dtype=bool)
+    for axis_xy in axes_xy:
+        inside |= np.linalg.norm(world[:, :2] - axis_xy, axis=1) < config.roi.radius_m
+    inside &= world[:, 2] < config.roi.max_height_m
     inside &= world[:, 2] > -config.ground.search_band_m
     dense = sparse_point_mask(
         world[inside],

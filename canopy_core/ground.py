@@ -9,7 +9,7 @@ the bumps bias the height H.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -60,9 +60,8 @@ class GroundFrame:
     """The world frame found for a capture, and how it was found.
 
     ``world_from_reference`` maps the reference view's camera frame to the world: z up, y across the row
-    (away from the reference camera), x along it; origin at the trunk's foot where its bark was found
-    (``origin_at_trunk``), else below the balls' centroid at the ground height of the trunk's base. The
-    region of interest is the vertical cylinder round the origin.
+    (away from the reference camera), x along it; origin below the balls' centroid at the ground height
+    of the trunk's base, or at the trunk's foot (:meth:`round_trunk`).
     """
 
     world_from_reference: np.ndarray
@@ -86,8 +85,26 @@ class GroundFrame:
     (grass and weeds hiding the trunk) when no trunk-sized circle holds them; 0 when nothing stands at a
     trunk's height near the balls, and ``trunk_xy_m`` is only the balls' centre."""
     ground_height_at_trunk_m: float
-    origin_at_trunk: bool
-    """Whether the trunk was found on its bark and the origin stands at its foot (``trunk_xy_m`` then 0)."""
+    trunk_on_bark: bool
+    """Whether the trunk was found on its bark (a trunk-sized circle), not only as the low slice's median."""
+    origin_at_trunk: bool = False
+    """Whether the origin stands at the trunk's foot (see :meth:`round_trunk`; ``trunk_xy_m`` then 0)."""
+
+    def round_trunk(self) -> GroundFrame:
+        """This frame with its origin moved to the trunk's foot where its bark was found (else itself): the
+        frame the tree is measured in, whose region of interest is the cylinder round the origin. It is
+        then the tree's however the crew laid the balls round it (2089047: their centroid 0.38 m off the
+        trunk left a branch tip 1.74 m from it, outside the 1.5 m cylinder; W 9.7 % narrow)."""
+        if not self.trunk_on_bark or self.origin_at_trunk:
+            return self
+        shift = np.eye(4)
+        shift[:2, 3] = -np.array(self.trunk_xy_m)
+        return replace(
+            self,
+            world_from_reference=shift @ self.world_from_reference,
+            trunk_xy_m=(0.0, 0.0),
+            origin_at_trunk=True,
+        )
 
 
 def ball_plane(ball_centres: np.ndarray, *, up_hint: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -248,14 +265,9 @@ def fit_ground_frame(
     ground_world = (points_m[ground] - contact) @ rotation.T
     trunk_xy, trunk_points, on_bark = _trunk_position(points_m, contact, rotation)
     ground_height = _local_ground_height(ground_world, trunk_xy, config.trunk_radius_m)
-    # The origin is the trunk's foot where its bark was found: the region of interest, the cylinder round
-    # the origin, is then the tree's however the crew laid the balls round it (2089047: their centroid
-    # 0.38 m off the trunk left a branch tip 1.74 m from it, outside the 1.5 m cylinder; W 9.7 % narrow).
-    origin_xy = trunk_xy if on_bark else np.zeros(2)
     world_from_reference = np.eye(4)
     world_from_reference[:3, :3] = rotation
-    world_from_reference[:3, 3] = -rotation @ contact - np.array([*origin_xy, ground_height])
-    trunk_xy = trunk_xy - origin_xy
+    world_from_reference[:3, 3] = -rotation @ contact - np.array([0.0, 0.0, ground_height])
     residual = ground_world[:, 2] if ground_world.size else np.zeros(1)
     return GroundFrame(
         world_from_reference=world_from_reference,
@@ -266,7 +278,7 @@ def fit_ground_frame(
         ball_heights_m=tuple(float(height) for height in heights),
         trunk_xy_m=(float(trunk_xy[0]), float(trunk_xy[1])),
         trunk_points=trunk_points,
-        origin_at_trunk=on_bark,
+        trunk_on_bark=on_bark,
         ground_height_at_trunk_m=float(ground_height),
     )
 
