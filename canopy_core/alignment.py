@@ -367,7 +367,7 @@ def _aligned(
         ground=measured_in,
         world_from_view=[to_trunk @ pose for pose in world_from_view],
         roi_points_m=[points[inside] for points, inside in zip(roi_points, in_tree_roi, strict=True)],
-        roi_colors_rgb=[colors[inside] for (_, colors, _), inside in zip(roi, in_tree_roi, strict=True)],
+        roi_colors_rgb=[rgb[inside] for (_, rgb, _), inside in zip(roi, in_tree_roi, strict=True)],
         stray_points_removed=[dropped for _, _, dropped in roi],
         icp=icp,
     )
@@ -515,7 +515,8 @@ def _roi_cloud(
     axes_xy: Sequence[np.ndarray],
 ) -> tuple[np.ndarray, np.ndarray, int]:
     """A view's points inside the regions of interest (the vertical cylinders of ``roi.radius_m`` round
-    each of ``axes_xy``, below ``roi.max_height_m``), in the world frame, without stray points."""
+    each of ``axes_xy``, below ``roi.max_height_m``), in the world frame, without stray points; and how
+    many stray points were dropped from the cylinder round the last axis (the tree's)."""
     world = apply(world_from_view, cloud.points_m)
     inside = np.zeros(world.shape[0], dtype=bool)
     for axis_xy in axes_xy:
@@ -530,4 +531,6 @@ def _roi_cloud(
         min_neighbors=config.filters.sparse_min_neighbors,
     )
     kept = np.flatnonzero(inside)[dense]
-    return world[kept], cloud.colors_rgb[kept], int(np.count_nonzero(inside) - kept.size)
+    dropped = world[np.flatnonzero(inside)[~dense]]
+    in_tree_roi = np.linalg.norm(dropped[:, :2] - axes_xy[-1], axis=1) < config.roi.radius_m
+    return world[kept], cloud.colors_rgb[kept], int(np.count_nonzero(in_tree_roi))

@@ -1,7 +1,8 @@
 """Separating the measured tree from whatever else stands in the region of interest.
 
-A cylinder around the balls holds the tree, but also what reaches into it from outside: a neighbour's
-crown, a trellis post, the trellis wires. Such intruders enter through the cylinder's wall.
+A cylinder round the trunk (round the balls where no trunk is found) holds the tree, but also what reaches
+into it from outside: a neighbour's crown, a trellis post, the trellis wires. Such intruders enter through
+the cylinder's wall.
 
 Wires (:func:`find_wires`) are found first, because they join everything they pass through: a wire runs
 along the row through the trunk line, so through the crown, and on to the posts and the neighbours. Each

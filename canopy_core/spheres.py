@@ -9,6 +9,7 @@ seeds them from its own candidates.
 
 from __future__ import annotations
 
+import contextlib
 import math
 from dataclasses import dataclass, field
 from typing import Any
@@ -458,18 +459,23 @@ def _least_squares_sphere(
                 step[:solved] = -np.linalg.solve(matrix[:solved, :solved], gradient[:solved])
             except np.linalg.LinAlgError:
                 break
+        bound = None
         if not lowest <= sphere[3] + step[3] <= highest:
             # To the bound, the centre solved for that radius. Were the radius clamped alone, the centre's
             # step, sized for the whole radius step, would overshoot: the fit crept to the bound in dozens
             # of halved steps (a grass tuft's free fit: up to 117 loss evaluations, where 5-10 are usual).
-            step[3] = (highest if sphere[3] + step[3] > highest else lowest) - sphere[3]
-            try:
-                step[:3] = -np.linalg.solve(matrix[:3, :3], gradient[:3] + matrix[:3, 3] * step[3])
-            except np.linalg.LinAlgError:
-                break
+            # Kept only when it goes downhill; else the radius is clamped as before.
+            reach = highest if sphere[3] + step[3] > highest else lowest
+            bounded = np.append(np.zeros(3), reach - sphere[3])
+            with contextlib.suppress(np.linalg.LinAlgError):
+                bounded[:3] = -np.linalg.solve(matrix[:3, :3], gradient[:3] + matrix[:3, 3] * bounded[3])
+                if np.isfinite(bounded).all() and float(gradient @ bounded) < 0.0:
+                    step, bound = bounded, reach
         while True:
             trial = sphere + step
-            trial[3] = min(max(trial[3], lowest), highest)
+            # The whole step to a bound lands on it exactly (the sum may miss it by a rounding).
+            trial[3] = bound if bound is not None else min(max(trial[3], lowest), highest)
+            bound = None
             if math.sqrt((trial - sphere) @ (trial - sphere)) < _CONVERGED_M:
                 return sphere  # converged: no step downhill longer than that is left to find
             trial_values, trial_offsets, trial_lengths = residuals(trial)

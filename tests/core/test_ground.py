@@ -83,6 +83,28 @@ def test_world_frame_is_level_with_the_ground_and_zero_at_the_trunk_foot() -> No
     assert recovered_from_world[1, 1] > 0.99  # y across the row, away from the camera
 
 
+def test_the_tree_is_measured_in_a_frame_whose_origin_is_its_trunk_foot() -> None:
+    # The balls lie to one side of the trunk, their centroid 0.4 m from it (below it, the frame's origin):
+    # the frame round the trunk puts the trunk's foot at the origin, level and on the ground as before, so
+    # the region of interest, the cylinder round the origin, is the tree's.
+    offsets = np.array([[0.7, 0.2], [0.1, 0.6], [0.5, -0.3]])
+    points_world, balls_world, trunk_xy = _scene(
+        np.random.default_rng(0), ball_xy=np.array([0.2, -0.1]) + offsets
+    )
+    frame, recovered_from_world = _fitted_frame(points_world, balls_world)
+    assert frame.trunk_on_bark and not frame.origin_at_trunk
+    assert np.linalg.norm(frame.trunk_xy_m) > 0.1
+
+    round_trunk = frame.round_trunk()
+
+    assert round_trunk.origin_at_trunk and round_trunk.trunk_xy_m == (0.0, 0.0)
+    trunk_from_world = round_trunk.world_from_reference @ np.linalg.inv(frame.world_from_reference)
+    trunk_foot = apply(trunk_from_world @ recovered_from_world, np.array([[*trunk_xy, 0.0]]))[0]
+    assert np.linalg.norm(trunk_foot) < 0.03
+    np.testing.assert_allclose(trunk_from_world[:3, :3], np.eye(3), atol=1e-12)  # moved, not turned
+    assert round_trunk.round_trunk() is round_trunk
+
+
 def test_the_trunk_is_found_on_its_bark_among_tall_grass_and_weeds() -> None:
     """One view's arc of a 7 cm trunk among clumps of leaning grass stems up to 45 cm tall, most of them on
     one side: the median of the low slice, which the trunk used to be, lies several centimetres off it."""
