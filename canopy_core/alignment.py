@@ -331,9 +331,10 @@ def _aligned(
     # ICP works on the low band of the cylinder round the balls (the origin), where they and the floor
     # between them hold the views together; the tree is measured in the cylinder round its trunk.
     measured_in = ground.round_trunk()
-    trunk_xy = np.array(ground.trunk_xy_m) if measured_in.origin_at_trunk else np.zeros(2)
+    to_trunk = measured_in.world_from_reference @ np.linalg.inv(ground.world_from_reference)
+    axes_xy = [np.zeros(2), -to_trunk[:2, 3]] if measured_in.origin_at_trunk else [np.zeros(2)]
     roi = [
-        _roi_cloud(cloud, pose, focal, config, axes_xy=(np.zeros(2), trunk_xy))
+        _roi_cloud(cloud, pose, focal, config, axes_xy=axes_xy)
         for cloud, pose, focal in zip(clouds, world_from_view, focal_px, strict=True)
     ]
     roi_points = [points for points, _, _ in roi]
@@ -358,7 +359,6 @@ def _aligned(
         world_from_view = [c @ pose for c, pose in zip(corrections, world_from_view, strict=True)]
         by_view = {report.view: report for report in reports}
         icp = [by_view.get(name) for name in view_names]
-    to_trunk = measured_in.world_from_reference @ np.linalg.inv(ground.world_from_reference)
     roi_points = [apply(to_trunk, points) for points in roi_points]
     in_tree_roi = [np.linalg.norm(points[:, :2], axis=1) < config.roi.radius_m for points in roi_points]
     return Alignment(
