@@ -4,6 +4,7 @@ contradict the balls."""
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
@@ -116,10 +117,7 @@ def align_views(
                 again = _aligned(view_names, clouds, focal_px, retry, grounds, config)
             except MeasurementError:
                 continue
-            # A choice made again rests on balls seen: one placed unseen among look-alikes ruled out in
-            # turn closes triangles the surfaces leave loose enough to pass (2051009).
-            unseen = any(choice.placed_unseen for choice in again.choices)
-            if not unseen and _within_refinement_bounds(again, config.icp):
+            if _confirms_choice_made_again(again, config.icp):
                 try:
                     check_trunk_agreement(again, clouds, grounds, config)
                 except RegistrationFailed:
@@ -135,9 +133,7 @@ def align_views(
             )
         except MeasurementError:
             raise failure from None
-        if any(choice.placed_unseen for choice in again.choices) or not _within_refinement_bounds(
-            again, config.icp
-        ):
+        if not _confirms_choice_made_again(again, config.icp):
             raise failure
         check_trunk_agreement(again, clouds, grounds, config)
         return again
@@ -208,6 +204,37 @@ def check_trunk_agreement(
             hint="check with `canopy balls --preview` which sphere was taken for each ball; clear what "
             "looks like a ball from around them, or re-lay them in open view, and capture again",
         )
+
+
+def _confirms_choice_made_again(alignment: Alignment, config: IcpConfig) -> bool:
+    """Whether the surfaces confirm a choice of balls made again, one hypothesis among several.
+
+    A choice of balls every view shows must keep within :func:`_within_refinement_bounds`. One resting on a
+    ball placed unseen holds each view by the balls it and the reference view both fit as spheres, and by
+    the ground; the loose bounds of a pose resting on a fragment would let a look-alike through (2051009: a
+    yellow look-alike, the red ball placed unseen 1.2 m off, ICP moving the balls 24 mm and turning the view
+    2.3 degrees). So no view's pose may rest on a fragment, each must share at least two fitted balls with
+    the reference, and ICP may move those no farther than their fits leave open (``max_ball_shift_m``) nor
+    turn the view farther than moves a ball at half their spacing by as much: 0.9 degrees for 2051009's
+    pair 1.26 m apart, 2.0 degrees for 2090041's 0.59 m apart, whose blue ball stood hidden at 4.6 m behind
+    the trunk in views/2 and where ICP, on balls placed right, moved them 6 mm and turned the view 0.8
+    degrees."""
+    if not any(choice.placed_unseen for choice in alignment.choices):
+        return _within_refinement_bounds(alignment, config)
+    if any(choice.found_by_position for choice in alignment.choices):
+        return False
+    reference = alignment.choices[0]
+    for choice, report in zip(alignment.choices[1:], alignment.icp[1:], strict=True):
+        held = [choice.chosen[color].fit.center_m for color in _fitted(choice) if color in _fitted(reference)]
+        if len(held) < 2:
+            return False
+        if report is None:
+            continue
+        spacing_m = max(float(np.linalg.norm(a - b)) for a, b in itertools.combinations(held, 2))
+        turn_deg = float(np.degrees(config.max_ball_shift_m / (spacing_m / 2.0)))
+        if report.ball_shift_m > config.max_ball_shift_m or report.rotation_change_deg > turn_deg:
+            return False
+    return True
 
 
 def _within_refinement_bounds(alignment: Alignment, config: IcpConfig) -> bool:

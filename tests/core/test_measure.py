@@ -303,11 +303,29 @@ def test_a_ball_placed_unseen_among_look_alikes_fails_where_the_surfaces_do_not_
     look-alike, views/2 a blue fragment 2 m off where that placed it, and views/1's red ball was placed
     unseen 1.2 m off: the triangles closed, ICP wanted 3.1 degrees more than such a pose leaves open, and
     W came out 75 % wide with no error. A pose resting on a ball placed unseen must be confirmed by the
-    surfaces, and a choice made again must rest on balls seen: the capture fails naming the view."""
+    surfaces; chosen again (views/2's red ball placed unseen), ICP moves the balls 24 mm and turns the view
+    2.3 degrees, more than the two fitted balls 1.26 m apart leave open: the capture fails naming the view."""
     capture = simulate_capture(tmp_path / "tree", seed=2051009, n_views=2, scenario="mixed")
     with pytest.raises(RegistrationFailed, match="not seen in this view") as info:
         measure(capture)
     assert info.value.view == "views/1"
+
+
+def test_a_ball_hidden_in_one_view_is_placed_unseen_when_the_balls_are_chosen_again(tmp_path: Path) -> None:
+    """Mixed seed 2090041, found on a held-out run of the accuracy benchmark: views/2's blue ball lies
+    4.6 m away, two thirds hidden; three fragments of clutter closed a triangle at views/1's distances, and
+    the ground and trunk refused it (the balls moved 92 mm). Chosen again without one of them, views/2's red
+    and yellow balls are fitted as spheres and the blue placed unseen where views/1's triangle puts it;
+    ICP moves the two balls 6 mm and turns the view 0.8 degrees, within what balls 0.59 m apart leave open.
+    The capture failed, refusing every choice made again that rests on a ball placed unseen; now it is
+    measured on the right balls."""
+    capture = simulate_capture(tmp_path / "tree", seed=2090041, n_views=2, scenario="mixed")
+    truth = _truth(capture)
+    result = measure(capture)
+    assert result.views[1].balls_placed_unseen == ("blue",)
+    for color in ("red", "yellow"):
+        assert _ball_error_m(result, truth, "views/2", color) < 0.02, color
+    _assert_within_5_percent(result.merged, truth)
 
 
 @pytest.mark.parametrize("seed", [2054014, 2053020])
@@ -552,20 +570,26 @@ def test_a_first_wire_fitted_askew_is_turned_onto_the_views_lines_before_it_is_j
     _assert_within_5_percent(measure(capture).merged, _truth(capture))
 
 
-def test_look_alikes_in_both_views_that_agree_by_chance_fail_the_registration_naming_the_view(
+def test_look_alikes_in_both_views_that_agree_by_chance_are_refused_and_the_balls_both_fit_hold_the_views(
     tmp_path: Path,
 ) -> None:
     """Weeds seed 2066007, found on a held-out run of the accuracy benchmark: each view took fragments round
     weeds and straw for all three balls, the triangles agreed by chance, and the views were registered 35
     degrees and 4 m apart. ICP, lining up flat ground, moved the balls by 13 mm and passed it, and W came
-    out 72 % wide with no error. The trunk's agreement refused that choice first; now no ball may rest on
-    spheres found only where other views' balls put them, the choices left fail ICP's bounds, and the
-    capture fails naming the view."""
+    out 72 % wide with no error. The trunk's agreement refuses that choice; then every choice made again
+    failed ICP's bounds, one resting on views/2's red ball placed unseen among them, and the capture failed
+    naming views/2. That choice holds views/2 by the yellow and blue balls both views fit as spheres, which
+    ICP moves 5 mm and turns 0.5 degrees, within what two balls 1.2 m apart leave open: it is taken, and
+    the tree is measured right, though views/1's red sphere is a look-alike a third of a metre from its ball
+    (a ball placed unseen holds no view in ICP, and the one it pairs with holds none either)."""
     capture = simulate_capture(tmp_path / "tree", seed=2066007, n_views=2, scenario="weeds")
-    with pytest.raises(RegistrationFailed) as info:
-        measure(capture)
-    assert info.value.view == "views/2"
-    assert info.value.field in ("icp.max_trunk_mismatch_m", "icp.max_disagreement_m")
+    truth = _truth(capture)
+    result = measure(capture)
+    assert result.views[1].balls_placed_unseen == ("red",)
+    for view in ("views/1", "views/2"):
+        for color in ("yellow", "blue"):
+            assert _ball_error_m(result, truth, view, color) < 0.02, (view, color)
+    _assert_within_5_percent(result.merged, truth)
 
 
 def test_a_registration_that_leaves_the_views_round_different_trunks_fails_naming_the_view(
