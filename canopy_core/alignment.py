@@ -75,9 +75,10 @@ def align_views(
     clutter that happens to close a triangle of the right sides. Each ball of that view, and then of the
     reference view, is ruled out in turn (:meth:`ViewBallCandidates.ruling_out`) and the balls chosen
     again; of the choices the surfaces agree with as closely as with a sound registration (ICP keeps its
-    refinement of every view) and that rest on balls seen (none placed unseen), the one they contradict
-    least is taken. A first choice resting on a ball placed unseen, or with a view that shares fewer than
-    two balls fitted as spheres with the reference, must itself meet that bound (:func:`_check_weakly_held`).
+    refinement of every view; :func:`_confirms_choice_made_again` for one resting on a ball placed unseen),
+    the one they contradict least is taken. A first choice resting on a ball placed unseen, or with a view
+    that shares fewer than two balls fitted as spheres with the reference, must itself meet that bound
+    (:func:`_check_weakly_held`).
     Every choice taken must also stand the views round one trunk (:func:`check_trunk_agreement`).
 
     Parameters
@@ -214,11 +215,13 @@ def _confirms_choice_made_again(alignment: Alignment, config: IcpConfig) -> bool
     the ground; the loose bounds of a pose resting on a fragment would let a look-alike through (2051009: a
     yellow look-alike, the red ball placed unseen 1.2 m off, ICP moving the balls 24 mm and turning the view
     2.3 degrees). So no view's pose may rest on a fragment, each must share at least two fitted balls with
-    the reference, and ICP may move those no farther than their fits leave open (``max_ball_shift_m``) nor
-    turn the view farther than moves a ball at half their spacing by as much: 0.9 degrees for 2051009's
-    pair 1.26 m apart, 2.0 degrees for 2090041's 0.59 m apart, whose blue ball stood hidden at 4.6 m behind
-    the trunk in views/2 and where ICP, on balls placed right, moved them 6 mm and turned the view 0.8
-    degrees."""
+    the reference and be refined by ICP, which may move those balls no farther than their fits leave open
+    (``max_ball_shift_m``). A view that or whose reference has a ball placed unseen may turn no farther than
+    moves a ball at half their spacing by as much, and never beyond a fragment's pose
+    (``max_rotation_found_by_position_deg``): 0.9 degrees for 2051009's pair 1.26 m apart, 2.0 degrees for
+    2090041's 0.59 m apart, whose blue ball stood hidden at 4.6 m behind the trunk in views/2 and where ICP,
+    on balls placed right, moved them 6 mm and turned the view 0.8 degrees. Any other view (a third, sharing
+    three fitted balls with the reference) keeps a sound registration's ``max_rotation_deg``."""
     if not any(choice.placed_unseen for choice in alignment.choices):
         return _within_refinement_bounds(alignment, config)
     if any(choice.found_by_position for choice in alignment.choices):
@@ -226,12 +229,15 @@ def _confirms_choice_made_again(alignment: Alignment, config: IcpConfig) -> bool
     reference = alignment.choices[0]
     for choice, report in zip(alignment.choices[1:], alignment.icp[1:], strict=True):
         held = [choice.chosen[color].fit.center_m for color in _fitted(choice) if color in _fitted(reference)]
-        if len(held) < 2:
-            return False
-        if report is None:
-            continue
-        spacing_m = max(float(np.linalg.norm(a - b)) for a, b in itertools.combinations(held, 2))
-        turn_deg = float(np.degrees(config.max_ball_shift_m / (spacing_m / 2.0)))
+        if len(held) < 2 or report is None:
+            return False  # neither two balls nor the surfaces hold the pose
+        turn_deg = config.max_rotation_deg
+        if choice.placed_unseen or reference.placed_unseen:
+            spacing_m = max(float(np.linalg.norm(a - b)) for a, b in itertools.combinations(held, 2))
+            turn_deg = min(
+                float(np.degrees(config.max_ball_shift_m / (spacing_m / 2.0))),
+                config.max_rotation_found_by_position_deg,
+            )
         if report.ball_shift_m > config.max_ball_shift_m or report.rotation_change_deg > turn_deg:
             return False
     return True
@@ -241,7 +247,8 @@ def _within_refinement_bounds(alignment: Alignment, config: IcpConfig) -> bool:
     """Whether the surfaces confirm these balls: ICP moves no view's balls, and turns no view, in any
     direction beyond what the balls' fits leave open (:func:`refinement_bounds`), the tilt too, which a
     refinement of a sound choice may correct further (the ground's). A choice made again is one hypothesis
-    among several, so it must meet that, not merely stay short of a certain failure
+    among several, so it must meet that (one resting on a ball placed unseen, the bounds of
+    :func:`_confirms_choice_made_again`), not merely stay short of a certain failure
     (:func:`check_icp_agreement`'s looser bounds): look-alikes both views see agree with each other and
     close triangles that ICP turns by 4-5 degrees."""
     loose_reference = _loose(alignment.choices[0])

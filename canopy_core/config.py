@@ -362,7 +362,9 @@ class IcpConfig(_Section):
         description="How far the balls' fits leave a view's turn open. A refinement turning the view more "
         "than this about the vertical is rejected (the ground and the upright trunk do not hold that turn; "
         "its tilt yields to the ground up to max_disagreement_deg). A choice of balls the surfaces must "
-        "confirm fails when ICP turns the view more about any axis.",
+        "confirm fails when ICP turns the view more about any axis; one chosen again that rests on a ball "
+        "placed unseen, when ICP turns it more than moves one of the two balls it shares with the reference "
+        "view by max_ball_shift_m about their midpoint.",
     )
     max_ball_shift_found_by_position_m: float = Field(
         0.05,
