@@ -219,7 +219,7 @@ def _confirms_choice_made_again(alignment: Alignment, config: IcpConfig) -> bool
     (``max_ball_shift_m``). A view that or whose reference has a ball placed unseen may turn no farther than
     moves a ball at half their spacing by as much, and never beyond a fragment's pose
     (``max_rotation_found_by_position_deg``): 0.9 degrees for 2051009's pair 1.26 m apart, 2.0 degrees for
-    2090041's 0.59 m apart, whose blue ball stood hidden at 4.6 m behind the trunk in views/2 and where ICP,
+    2090041's 0.58 m apart, whose blue ball stood hidden at 4.6 m behind the trunk in views/2 and where ICP,
     on balls placed right, moved them 6 mm and turned the view 0.8 degrees. Any other view (a third, sharing
     three fitted balls with the reference) keeps a sound registration's ``max_rotation_deg``."""
     if not any(choice.placed_unseen for choice in alignment.choices):

@@ -362,9 +362,10 @@ class IcpConfig(_Section):
         description="How far the balls' fits leave a view's turn open. A refinement turning the view more "
         "than this about the vertical is rejected (the ground and the upright trunk do not hold that turn; "
         "its tilt yields to the ground up to max_disagreement_deg). A choice of balls the surfaces must "
-        "confirm fails when ICP turns the view more about any axis; one chosen again that rests on a ball "
-        "placed unseen, when ICP turns it more than moves one of the two balls it shares with the reference "
-        "view by max_ball_shift_m about their midpoint.",
+        "confirm fails when ICP turns the view more about any axis. When such a choice, made again, rests on "
+        "a ball placed unseen in the view or the reference view, the view may turn as far as moves the balls "
+        "it shares with the reference by max_ball_shift_m about their midpoint, at most "
+        "max_rotation_found_by_position_deg.",
     )
     max_ball_shift_found_by_position_m: float = Field(
         0.05,
@@ -375,7 +376,8 @@ class IcpConfig(_Section):
     max_rotation_found_by_position_deg: float = Field(
         3.0,
         gt=0.0,
-        description="As max_rotation_deg, for such a view: a few centimetres at balls 0.6-1.5 m apart.",
+        description="As max_rotation_deg, for such a view: a few centimetres at balls 0.6-1.5 m apart; also "
+        "the most a view held by two balls and a ball placed unseen may turn (see max_rotation_deg).",
     )
     max_disagreement_m: float = Field(
         0.05,

@@ -136,6 +136,34 @@ def test_a_ball_placed_unseen_is_refused_beside_a_fragment_with_one_shared_ball_
     assert not _confirms_choice_made_again(_two_views(None), CONFIG)
 
 
+def test_a_ball_placed_unseen_is_refused_when_another_view_rests_on_a_fragment() -> None:
+    """views/2 places its blue ball unseen and shares red and yellow; views/3 shares them too, but holds
+    its blue ball only as a fragment: however closely ICP confirms both, the choice is refused."""
+    choices = [
+        _choice("views/1"),
+        _choice("views/2", unseen=("blue",)),
+        _choice("views/3", by_position=("blue",)),
+    ]
+    sound = [
+        None,
+        _report("views/2", shift_m=0.002, turn_deg=0.2),
+        _report("views/3", shift_m=0.002, turn_deg=0.2),
+    ]
+    assert not _confirms_choice_made_again(_alignment(choices, sound), CONFIG)
+    assert _confirms_choice_made_again(_alignment([*choices[:2], _choice("views/3")], sound), CONFIG)
+
+
+def test_a_view_whose_reference_places_a_ball_unseen_may_turn_as_far_as_their_shared_pair_leaves_open() -> (
+    None
+):
+    """The reference view places its blue ball unseen; views/2 fits all three, but only red and yellow hold
+    it to the reference: 1.0 degree is within the 1.9 degrees those two leave open."""
+    choices = [_choice("views/1", unseen=("blue",)), _choice("views/2")]
+    assert _confirms_choice_made_again(
+        _alignment(choices, [None, _report("views/2", shift_m=0.004, turn_deg=1.0)]), CONFIG
+    )
+
+
 def test_a_third_view_sharing_every_ball_keeps_a_sound_registration_s_turn() -> None:
     """views/2 places its blue ball unseen; views/3 fits all three, as the reference does: it may turn
     0.5 degrees, not the 1.9 degrees views/2's pair leaves open."""
