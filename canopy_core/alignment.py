@@ -228,7 +228,7 @@ def _confirms_choice_made_again(alignment: Alignment, config: IcpConfig) -> bool
         return False
     reference = alignment.choices[0]
     for choice, report in zip(alignment.choices[1:], alignment.icp[1:], strict=True):
-        held = [choice.chosen[color].fit.center_m for color in _fitted(choice) if color in _fitted(reference)]
+        held = [choice.chosen[color].fit.center_m for color in _shared_fitted(choice, reference)]
         if len(held) < 2 or report is None:
             return False  # neither two balls nor the surfaces hold the pose
         turn_deg = config.max_rotation_deg
@@ -280,9 +280,7 @@ def _check_weakly_held(alignment: Alignment, config: IcpConfig) -> None:
         Naming the first such view, and the balls it placed or shares as spheres.
     """
     reference = alignment.choices[0]
-    shared = [
-        [color for color in _fitted(choice) if color in _fitted(reference)] for choice in alignment.choices
-    ]
+    shared = [_shared_fitted(choice, reference) for choice in alignment.choices]
     weak = [i for i, choice in enumerate(alignment.choices) if choice.placed_unseen or len(shared[i]) < 2]
     if not weak or _within_refinement_bounds(alignment, config):
         return
@@ -301,6 +299,13 @@ def _check_weakly_held(alignment: Alignment, config: IcpConfig) -> None:
         hint="check with `canopy balls --preview` which sphere was taken for each ball; lay the balls where "
         "every view sees them, in open view, and capture again",
     )
+
+
+def _shared_fitted(choice: BallChoice, reference: BallChoice) -> list[str]:
+    """The colours of the balls a view and the reference view both fit as spheres (:func:`_fitted`): those
+    that hold the view's pose to the reference's."""
+    in_reference = _fitted(reference)
+    return [color for color in _fitted(choice) if color in in_reference]
 
 
 def _fitted(choice: BallChoice) -> list[str]:
