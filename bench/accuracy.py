@@ -14,6 +14,7 @@ tape and pole, a different kind of number.
     .venv/bin/python bench/accuracy.py --scenario mixed --count 60 [--seed 2027] [--views 2] [--jobs 2]
     .venv/bin/python bench/accuracy.py --scenario all --count 10     # every family, one after another
     .venv/bin/python bench/accuracy.py --scenario mixed --sensor azure-kinect-nfov-binned  # another camera
+    .venv/bin/python bench/accuracy.py --scenario mixed --slope-deg 6  # a hillside orchard
 """
 
 from __future__ import annotations
@@ -40,9 +41,11 @@ WRONG_SPHERE_M = 0.05
 """A ball chosen this far from the true ball's centre (in its view) is another sphere taken for it."""
 
 
-def _measure_one(args: tuple[Path, int, int, str, str]) -> dict:
-    folder, seed, views, scenario, sensor = args
-    capture = simulate_capture(folder, seed=seed, n_views=views, scenario=scenario, sensor=sensor)
+def _measure_one(args: tuple[Path, int, int, str, str, float | None]) -> dict:
+    folder, seed, views, scenario, sensor, slope_deg = args
+    capture = simulate_capture(
+        folder, seed=seed, n_views=views, scenario=scenario, sensor=sensor, slope_deg=slope_deg
+    )
     truth = json.loads((capture / "ground_truth.json").read_text())
     try:
         result = measure(capture)
@@ -133,12 +136,22 @@ def main() -> None:
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--scenario", default="green", choices=[*(s.value for s in Scenario), "all"])
     parser.add_argument("--sensor", default="kinect-v2", choices=list(SENSORS))
+    parser.add_argument(
+        "--slope-deg",
+        type=float,
+        help="Ground slope in degrees under every tree (default: nearly level, at most 0.5 degrees).",
+    )
     parser.add_argument("--details", action="store_true", help="Print every tree's errors and failures.")
     options = parser.parse_args()
     scenarios = [s.value for s in Scenario] if options.scenario == "all" else [options.scenario]
     print(
-        f"{options.count} trees per family, {options.views} views each, {options.sensor}, seeds "
-        f"{options.seed * 1000} to {options.seed * 1000 + options.count - 1}"
+        f"{options.count} trees per family, {options.views} views each, {options.sensor}, "
+        + (
+            "nearly level ground"
+            if options.slope_deg is None
+            else f"ground sloping {options.slope_deg:g} degrees"
+        )
+        + f", seeds {options.seed * 1000} to {options.seed * 1000 + options.count - 1}"
     )
     for scenario in scenarios:
         with tempfile.TemporaryDirectory(prefix="canopy-bench-") as scratch:
@@ -149,6 +162,7 @@ def main() -> None:
                     options.views,
                     scenario,
                     options.sensor,
+                    options.slope_deg,
                 )
                 for i in range(options.count)
             ]

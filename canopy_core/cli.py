@@ -167,6 +167,13 @@ def simulate(
             "(640x576 depth)."
         ),
     ] = "kinect-v2",
+    slope_deg: Annotated[
+        float | None,
+        typer.Option(
+            help="Ground slope in degrees, downhill in a random direction (a hillside orchard; trees stand "
+            "upright). Default: nearly level, at most 0.5 degrees."
+        ),
+    ] = None,
 ) -> None:
     """Write synthetic captures of procedural apple trees, each with its ground_truth.json."""
     require_extra("sim", "simulate")
@@ -181,8 +188,10 @@ def simulate(
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from exc
     try:
-        paths = simulate_captures(out, seed=seed, count=count, n_views=views, scenario=family, sensor=sensor)
-    except FileExistsError as exc:
+        paths = simulate_captures(
+            out, seed=seed, count=count, n_views=views, scenario=family, sensor=sensor, slope_deg=slope_deg
+        )
+    except (FileExistsError, ValueError) as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from exc
     for path in paths:

@@ -3,7 +3,8 @@
 The field is a regular 10 cm grid within 5.5 m of the trunk (where cameras stand and depth is read)
 surrounded by cells growing to 40 m, so that the colour camera sees ground up to the horizon. Heights are a
 gentle undulation (metres of wavelength, a few centimetres high) plus bumps of +-2-4 cm, with a tilt of at
-most 0.5 degrees, shifted so that the ground is exactly z = 0 at the trunk base (the origin).
+most 0.5 degrees (or a hillside's slope, when one is asked for), shifted so that the ground is exactly z = 0
+at the trunk base (the origin).
 """
 
 from __future__ import annotations
@@ -36,6 +37,9 @@ class Ground:
     strip_half_width_m: float
     tilt_deg: float
     mesh: Mesh
+    hillside_gradient: tuple[float, float] = (0.0, 0.0)
+    """A hillside's rise in metres per metre along x and y, which a trellis's wires climb with from post to
+    post; zero on nearly level ground, whose slight tilt they ignore (strung level)."""
 
     def height_at(self, x: np.ndarray | float, y: np.ndarray | float) -> np.ndarray:
         """Exact height of the triangulated ground surface at horizontal positions ``(x, y)``."""
@@ -131,12 +135,17 @@ def _colors(rng: np.random.Generator, centroids: np.ndarray, strip_half_width_m:
     return np.where(in_strip[:, None], soil, grass).astype(np.float32)
 
 
-def random_ground(rng: np.random.Generator) -> Ground:
-    """Draw an uneven orchard floor with z = 0 at the origin (the main tree's trunk base)."""
+def random_ground(rng: np.random.Generator, *, slope_deg: float | None = None) -> Ground:
+    """Draw an uneven orchard floor with z = 0 at the origin (the main tree's trunk base), nearly level
+    (tilted by at most 0.5 degrees) or, with ``slope_deg``, on a hillside of that slope in a random
+    direction. The tilt is drawn either way, so that a slope leaves every other draw as it was."""
     xs = ys = _axis()
     grid_x, grid_y = np.meshgrid(xs, ys)
     tilt_deg = rng.uniform(0.0, 0.5)
+    if slope_deg is not None:
+        tilt_deg = slope_deg
     tilt_direction = rng.uniform(0.0, 2 * np.pi)
+    rise = np.tan(np.radians(tilt_deg)) * np.array([np.cos(tilt_direction), np.sin(tilt_direction)])
     heights = (
         _undulation(rng, grid_x, grid_y)
         + _bumps(rng, xs, ys)
@@ -154,5 +163,11 @@ def random_ground(rng: np.random.Generator) -> Ground:
         kinds=np.full(len(triangles), SurfaceKind.GROUND, dtype=np.int8),
     )
     return Ground(
-        xs=xs, ys=ys, heights_m=heights, strip_half_width_m=strip_half_width_m, tilt_deg=tilt_deg, mesh=mesh
+        xs=xs,
+        ys=ys,
+        heights_m=heights,
+        strip_half_width_m=strip_half_width_m,
+        tilt_deg=tilt_deg,
+        mesh=mesh,
+        hillside_gradient=(0.0, 0.0) if slope_deg is None else (float(rise[0]), float(rise[1])),
     )

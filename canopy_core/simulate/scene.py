@@ -117,11 +117,12 @@ def post_span_m(neighbour: Tree) -> tuple[float, float]:
     return _POST_MIN_DISTANCE_M, min(2.4, abs(float(neighbour.base[0])) - 0.8)
 
 
-def build_orchard(rng: np.random.Generator, *, posts: bool = True) -> Orchard:
-    """Draw a stretch of orchard row: ground, the main tree at the origin, a neighbour on each side
-    3-4 m away along x, and (if ``posts``; a trellis with wires brings its own) trellis posts between them
-    at least 1.6 m from the main trunk."""
-    ground = random_ground(rng)
+def build_orchard(rng: np.random.Generator, *, posts: bool = True, slope_deg: float | None = None) -> Orchard:
+    """Draw a stretch of orchard row: ground (level, or of ``slope_deg``: see :func:`random_ground`), the
+    main tree at the origin, a neighbour on each side 3-4 m away along x, and (if ``posts``; a trellis with
+    wires brings its own) trellis posts between them at least 1.6 m from the main trunk. Trees and posts
+    stand upright whatever the slope."""
+    ground = random_ground(rng, slope_deg=slope_deg)
     main_tree = build_tree(random_tree_shape(rng), rng, base=np.zeros(3))
     main_points = cKDTree(main_tree.mesh.vertices)
     neighbours = tuple(_neighbour(rng, ground, main_points, side) for side in (-1, 1))

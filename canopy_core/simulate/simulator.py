@@ -39,6 +39,8 @@ ORCHARD_NAME = "Simulated block"
 ROW_NAME = "R01"
 _DEPTH_SCALE = 1000.0
 _FIRST_DAY = datetime(2026, 9, 1, 7, 0, tzinfo=UTC)
+_STEEPEST_SLOPE_DEG = 30.0
+"""Steeper than this, orchards stand on terraces (each level again): no slope the simulator draws."""
 
 
 def _captured_at(rng: np.random.Generator) -> str:
@@ -56,6 +58,7 @@ def _simulate(
     sun: float | None,
     scenario: Scenario,
     sensor: Sensor,
+    slope_deg: float | None,
 ) -> Path:
     check_empty(out_dir)
     # The first six streams are the plain scene's, as they always were; the seventh is the scenario's.
@@ -65,7 +68,9 @@ def _simulate(
     )
     scenario_streams = ScenarioStreams.spawn(streams[6])
     plan = plan_scenario(scenario, scenario_streams.plan)
-    dressing = dress_orchard(build_orchard(orchard_rng, posts=not plan.wires), plan, scenario_streams)
+    dressing = dress_orchard(
+        build_orchard(orchard_rng, posts=not plan.wires, slope_deg=slope_deg), plan, scenario_streams
+    )
     orchard = dressing.orchard
     rig = random_kinect_rig(rig_rng, sensor)
     sunlight = scenario_sunlight(plan, sun_rng, scenario_streams.light, sun)
@@ -135,12 +140,14 @@ def _simulate(
     )
 
 
-def _checked(n_views: int, sun: float | None, scenario: Scenario | str) -> Scenario:
+def _checked(n_views: int, sun: float | None, scenario: Scenario | str, slope_deg: float | None) -> Scenario:
     """The scenario named ``scenario``, after checking the options (ValueError if one is wrong)."""
     if n_views < 1:
         raise ValueError(f"n_views must be at least 1, got {n_views}")
     if sun is not None and not 0.0 <= sun <= 1.0:
         raise ValueError(f"sun must be in [0, 1], got {sun}")
+    if slope_deg is not None and not 0.0 <= slope_deg < _STEEPEST_SLOPE_DEG:
+        raise ValueError(f"slope_deg must be in [0, {_STEEPEST_SLOPE_DEG:g}), got {slope_deg}")
     return parse_scenario(scenario)
 
 
@@ -153,6 +160,7 @@ def simulate_capture(
     sun: float | None = None,
     scenario: Scenario | str = Scenario.GREEN,
     sensor: str = "kinect-v2",
+    slope_deg: float | None = None,
 ) -> Path:
     """Write one synthetic RGB-D capture of a simulated apple tree, with its ``ground_truth.json``.
 
@@ -178,6 +186,9 @@ def simulate_capture(
         The sensor's name (:data:`~canopy_core.simulate.camera.SENSORS`): ``kinect-v2``, or an Azure Kinect
         depth mode, ``azure-kinect-nfov-binned`` (320x288) or ``azure-kinect-nfov`` (640x576), with a
         1280x720 colour camera. ``native_color`` False registers colour to the depth image whatever it is.
+    slope_deg
+        The ground's slope in degrees, downhill in a random direction: a hillside orchard, whose trees and
+        posts still stand upright. None: nearly level (at most 0.5 degrees), as every family's default.
 
     Returns
     -------
@@ -187,11 +198,12 @@ def simulate_capture(
     Raises
     ------
     ValueError
-        If ``n_views`` < 1, ``sun`` is outside [0, 1], or ``scenario`` or ``sensor`` names no such thing.
+        If ``n_views`` < 1, ``sun`` is outside [0, 1], ``slope_deg`` outside [0, 30), or ``scenario`` or
+        ``sensor`` names no such thing.
     FileExistsError
         If ``out_dir`` already holds files.
     """
-    family = _checked(n_views, sun, scenario)
+    family = _checked(n_views, sun, scenario, slope_deg)
     return _simulate(
         Path(out_dir),
         seed=seed,
@@ -201,6 +213,7 @@ def simulate_capture(
         sun=sun,
         scenario=family,
         sensor=parse_sensor(sensor),
+        slope_deg=slope_deg,
     )
 
 
@@ -212,6 +225,7 @@ def simulate_captures(
     n_views: int = 2,
     scenario: Scenario | str = Scenario.GREEN,
     sensor: str = "kinect-v2",
+    slope_deg: float | None = None,
 ) -> list[Path]:
     """Write ``count`` synthetic captures ``out/tree_000``, ``out/tree_001``, ... of different trees.
 
@@ -234,6 +248,8 @@ def simulate_captures(
         draws its own elements.
     sensor
         The sensor of every capture (see :func:`simulate_capture`).
+    slope_deg
+        The ground's slope under every tree (see :func:`simulate_capture`); None: nearly level.
 
     Returns
     -------
@@ -243,11 +259,12 @@ def simulate_captures(
     Raises
     ------
     ValueError
-        If ``count`` < 0, ``n_views`` < 1, or ``scenario`` or ``sensor`` names no such thing.
+        If ``count`` < 0, ``n_views`` < 1, ``slope_deg`` outside [0, 30), or ``scenario`` or ``sensor``
+        names no such thing.
     """
     if count < 0:
         raise ValueError(f"count must not be negative, got {count}")
-    family = _checked(n_views, None, scenario)
+    family = _checked(n_views, None, scenario, slope_deg)
     model = parse_sensor(sensor)
     seeds = [int(child.generate_state(1)[0]) for child in np.random.SeedSequence(seed).spawn(count)]
     return [
@@ -260,6 +277,7 @@ def simulate_captures(
             sun=None,
             scenario=family,
             sensor=model,
+            slope_deg=slope_deg,
         )
         for index, tree_seed in enumerate(seeds)
     ]

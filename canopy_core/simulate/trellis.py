@@ -44,13 +44,16 @@ _WIRE_VALUE = (0.45, 0.75)
 class Wire:
     """One wire: its height (world z, metres) at its supports, which stand at ``supports_x_m`` along the row,
     its diameter and y position; between two supports it hangs ``sag_per_span`` times the span lower at
-    mid-span, as a parabola (see :func:`wire_height_m`)."""
+    mid-span, as a parabola (see :func:`wire_height_m`). On a hillside its supports climb ``rise_per_m``
+    metres per metre along the row, ``height_m`` being its height at x = 0: the wire runs parallel to the
+    ground from post to post, as a real trellis's does."""
 
     height_m: float
     diameter_m: float
     y_m: float
     sag_per_span: float
     supports_x_m: tuple[float, ...]
+    rise_per_m: float = 0.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -77,7 +80,8 @@ def wire_height_m(wire: Wire, x: np.ndarray) -> np.ndarray:
     supports = np.asarray(wire.supports_x_m)
     span = np.clip(np.searchsorted(supports, x, side="right") - 1, 0, len(supports) - 2)
     left, right = supports[span], supports[span + 1]
-    return wire.height_m - wire.sag_per_span * 4.0 * (x - left) * (right - x) / (right - left)
+    sag = wire.sag_per_span * 4.0 * (x - left) * (right - x) / (right - left)
+    return wire.height_m + wire.rise_per_m * x - sag
 
 
 def build_trellis(rng: np.random.Generator, orchard: Orchard) -> Trellis:
@@ -102,13 +106,17 @@ def build_trellis(rng: np.random.Generator, orchard: Orchard) -> Trellis:
     )[0]
     wires: list[Wire] = []
     meshes: list[Mesh] = []
+    along_row, across_row = ground.hillside_gradient
     for height in heights:
+        diameter = float(rng.uniform(*_WIRE_DIAMETER_M))
+        wire_y = float(y + rng.normal(0.0, 0.005))
         wire = Wire(
-            height_m=float(height),
-            diameter_m=float(rng.uniform(*_WIRE_DIAMETER_M)),
-            y_m=float(y + rng.normal(0.0, 0.005)),
+            height_m=float(height + across_row * wire_y),
+            diameter_m=diameter,
+            y_m=wire_y,
             sag_per_span=float(rng.uniform(*_SAG_PER_SPAN)),
             supports_x_m=tuple(float(v) for v in supports_x),
+            rise_per_m=along_row,
         )
         centreline = np.column_stack([x, np.full_like(x, wire.y_m), wire_height_m(wire, x)])
         meshes.append(

@@ -151,6 +151,9 @@ def test_refuses_bad_options_and_a_folder_that_holds_files(tmp_path: Path) -> No
         simulate_capture(tmp_path / "a", seed=1, n_views=0)
     with pytest.raises(ValueError, match="sun"):
         simulate_capture(tmp_path / "a", seed=1, sun=1.5)
+    for slope in (-1.0, 30.0):
+        with pytest.raises(ValueError, match="slope_deg"):
+            simulate_capture(tmp_path / "a", seed=1, slope_deg=slope)
     (tmp_path / "full").mkdir()
     (tmp_path / "full" / "capture.json").write_text("{}")
     with pytest.raises(FileExistsError):
@@ -292,6 +295,34 @@ def test_ground_is_zero_at_the_trunk_base_and_its_heights_match_its_mesh() -> No
     rays = np.column_stack([xy, np.full(500, 10.0), np.zeros((500, 2)), -np.ones(500)]).astype(np.float32)
     surface_z = 10.0 - scene.cast_rays(o3d.core.Tensor.from_numpy(rays))["t_hit"].numpy()
     np.testing.assert_allclose(surface_z, ground.height_at(xy[:, 0], xy[:, 1]), atol=2e-5)
+
+
+def test_a_hillside_slopes_as_asked_and_leaves_every_other_draw_as_it_was() -> None:
+    level = random_ground(np.random.default_rng(6))
+    hillside = random_ground(np.random.default_rng(6), slope_deg=8.0)
+    assert hillside.tilt_deg == 8.0 and float(hillside.height_at(0.0, 0.0)) == 0.0
+    # Both tilt the same way, so they differ by a plane whose gradient is the difference of their slopes:
+    # the bumps and the undulation are the same draws.
+    inner = (np.abs(hillside.xs) <= 5.0)[None, :] & (np.abs(hillside.ys) <= 5.0)[:, None]
+    grid_x, grid_y = np.meshgrid(hillside.xs, hillside.ys)
+    difference = (hillside.heights_m - level.heights_m)[inner]
+    design = np.column_stack([grid_x[inner], grid_y[inner]])
+    gradient = np.linalg.lstsq(design, difference, rcond=None)[0]
+    np.testing.assert_allclose(design @ gradient, difference, atol=1e-9)
+    expected = np.tan(np.radians(8.0)) - np.tan(np.radians(level.tilt_deg))
+    assert float(np.hypot(*gradient)) == pytest.approx(expected, rel=1e-9)
+
+
+def test_trees_stand_upright_on_a_hillside_and_the_balls_rest_on_it(tmp_path: Path) -> None:
+    capture = simulate_capture(tmp_path / "hill", seed=3, slope_deg=10.0)
+    truth = json.loads((capture / "ground_truth.json").read_text())
+    assert truth["ground"]["tilt_deg"] == 10.0
+    centres = np.array([truth["balls"][color]["center_m"] for color in ("red", "yellow", "blue")])
+    # Balls half a metre to a metre from the trunk on a 10-degree slope stand at different heights.
+    assert np.ptp(centres[:, 2]) > 0.05
+    # The tree is measured upright from its trunk base, whatever the ground does around it.
+    level = json.loads((simulate_capture(tmp_path / "level", seed=3) / "ground_truth.json").read_text())
+    assert truth["height_m"] == level["height_m"] and truth["width_m"] == level["width_m"]
 
 
 # --- the sensor ---------------------------------------------------------------------------------------
@@ -491,6 +522,13 @@ def test_cli_refuses_an_unknown_scenario_in_one_line(tmp_path: Path) -> None:
         simulate_capture(tmp_path / "a", seed=1, scenario="snowy")
 
 
+def test_cli_refuses_a_slope_too_steep_for_an_orchard_in_one_line(tmp_path: Path) -> None:
+    result = CliRunner().invoke(app, ["simulate", str(tmp_path / "out"), "--slope-deg", "35"])
+    assert result.exit_code == 2
+    assert result.stderr.splitlines() == ["error: slope_deg must be in [0, 30), got 35.0"]
+    assert not (tmp_path / "out").exists()
+
+
 def test_mixed_captures_cover_every_element_and_green_holds_none() -> None:
     plans = [plan_scenario(Scenario.MIXED, np.random.default_rng(seed)) for seed in range(60)]
     for element in ("ground_palette", "fallen_leaves", "fruit", "wires", "weeds", "harsh_light", "shadows"):
@@ -581,6 +619,22 @@ def test_wires_show_in_depth_as_a_thin_wire_does(family) -> None:
                 read = depth_m[row[inside], column[inside]]
                 found.extend(np.abs(read - along_m[inside]) < 0.03)
     assert sum(on_line) >= 30 and np.mean(on_line) > 4 * np.mean(off_line)
+
+
+def test_wires_on_a_hillside_climb_with_it_from_post_to_post(tmp_path: Path) -> None:
+    from canopy_core.simulate.trellis import Wire, wire_height_m
+
+    truth = _truth(simulate_capture(tmp_path / "hill", seed=4, scenario="wires", slope_deg=8.0))
+    posts = np.array(truth["posts"])
+    assert len(posts) >= 3 and np.ptp(posts[:, 2]) > 0.2  # the ground under the posts differs
+    ground_rise = np.polyfit(posts[:, 0], posts[:, 2], 1)[0]
+    for record in truth["wires"]:
+        wire = Wire(**{**record, "supports_x_m": tuple(record["supports_x_m"])})
+        # They climb as the ground does along the row, and so stand about as high above it at every
+        # post (the ground's bumps and undulation aside), where a level wire would not.
+        assert wire.rise_per_m == pytest.approx(ground_rise, abs=0.005)
+        above = wire_height_m(wire, posts[:, 0]) - posts[:, 2]
+        assert np.ptp(above) < 0.5 * np.ptp(posts[:, 2])
 
 
 def test_weeds_grow_at_the_trunk_foot_below_the_crown_and_outside_the_ground_truth(family) -> None:
