@@ -15,6 +15,7 @@ tape and pole, a different kind of number.
     .venv/bin/python bench/accuracy.py --scenario all --count 10     # every family, one after another
     .venv/bin/python bench/accuracy.py --scenario mixed --sensor azure-kinect-nfov-binned  # another camera
     .venv/bin/python bench/accuracy.py --scenario mixed --slope-deg 6  # a hillside orchard
+    .venv/bin/python bench/accuracy.py --scenario mixed --stake  # a support stake beside every trunk
 """
 
 from __future__ import annotations
@@ -41,10 +42,10 @@ WRONG_SPHERE_M = 0.05
 """A ball chosen this far from the true ball's centre (in its view) is another sphere taken for it."""
 
 
-def _measure_one(args: tuple[Path, int, int, str, str, float | None]) -> dict:
-    folder, seed, views, scenario, sensor, slope_deg = args
+def _measure_one(args: tuple[Path, int, int, str, str, float | None, bool]) -> dict:
+    folder, seed, views, scenario, sensor, slope_deg, stake = args
     capture = simulate_capture(
-        folder, seed=seed, n_views=views, scenario=scenario, sensor=sensor, slope_deg=slope_deg
+        folder, seed=seed, n_views=views, scenario=scenario, sensor=sensor, slope_deg=slope_deg, stake=stake
     )
     truth = json.loads((capture / "ground_truth.json").read_text())
     try:
@@ -141,6 +142,11 @@ def main() -> None:
         type=float,
         help="Ground slope in degrees under every tree (default: nearly level, at most 0.5 degrees).",
     )
+    parser.add_argument(
+        "--stake",
+        action="store_true",
+        help="A support stake beside every trunk (its top may be above the crown).",
+    )
     parser.add_argument("--details", action="store_true", help="Print every tree's errors and failures.")
     options = parser.parse_args()
     scenarios = [s.value for s in Scenario] if options.scenario == "all" else [options.scenario]
@@ -151,6 +157,7 @@ def main() -> None:
             if options.slope_deg is None
             else f"ground sloping {options.slope_deg:g} degrees"
         )
+        + (", a stake beside every trunk" if options.stake else "")
         + f", seeds {options.seed * 1000} to {options.seed * 1000 + options.count - 1}"
     )
     for scenario in scenarios:
@@ -163,6 +170,7 @@ def main() -> None:
                     scenario,
                     options.sensor,
                     options.slope_deg,
+                    options.stake,
                 )
                 for i in range(options.count)
             ]

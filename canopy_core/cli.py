@@ -174,6 +174,13 @@ def simulate(
             "upright). Default: nearly level, at most 0.5 degrees."
         ),
     ] = None,
+    stake: Annotated[
+        bool,
+        typer.Option(
+            help="Stand a support stake beside every trunk (a 2 cm pole, its top up to 0.5 m above or below "
+            "the crown's), as young tall-spindle trees have."
+        ),
+    ] = False,
 ) -> None:
     """Write synthetic captures of procedural apple trees, each with its ground_truth.json."""
     require_extra("sim", "simulate")
@@ -189,7 +196,14 @@ def simulate(
         raise typer.Exit(2) from exc
     try:
         paths = simulate_captures(
-            out, seed=seed, count=count, n_views=views, scenario=family, sensor=sensor, slope_deg=slope_deg
+            out,
+            seed=seed,
+            count=count,
+            n_views=views,
+            scenario=family,
+            sensor=sensor,
+            slope_deg=slope_deg,
+            stake=stake,
         )
     except (FileExistsError, ValueError) as exc:
         typer.echo(f"error: {exc}", err=True)

@@ -8,6 +8,7 @@ existed.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from datetime import UTC, datetime, timedelta
 from functools import partial
 from pathlib import Path
@@ -16,6 +17,7 @@ import numpy as np
 
 from canopy_core.capture import CameraModel
 from canopy_core.simulate.camera import Sensor, parse_sensor, random_kinect_rig
+from canopy_core.simulate.mesh import merge_meshes
 from canopy_core.simulate.placement import place_balls_and_cameras
 from canopy_core.simulate.raycast import SceneRaycaster, ShadowCaster
 from canopy_core.simulate.scenario import (
@@ -30,6 +32,7 @@ from canopy_core.simulate.scenario import (
 )
 from canopy_core.simulate.scene import build_orchard
 from canopy_core.simulate.sensor import capture_frame
+from canopy_core.simulate.stake import random_stake
 from canopy_core.simulate.tree import tree_dimensions
 from canopy_core.simulate.writer import CaptureLabels, GroundTruth, SimulatedView, check_empty, write_capture
 
@@ -59,10 +62,12 @@ def _simulate(
     scenario: Scenario,
     sensor: Sensor,
     slope_deg: float | None,
+    stake: bool,
 ) -> Path:
     check_empty(out_dir)
-    # The first six streams are the plain scene's, as they always were; the seventh is the scenario's.
-    streams = np.random.SeedSequence(seed).spawn(7)
+    # The first six streams are the plain scene's, as they always were; the seventh is the scenario's, the
+    # eighth the stake's (spawned children depend only on their index: the others are as they were).
+    streams = np.random.SeedSequence(seed).spawn(8)
     orchard_rng, rig_rng, sun_rng, layout_rng, sensor_rng, label_rng = (
         np.random.default_rng(stream) for stream in streams[:6]
     )
@@ -72,6 +77,16 @@ def _simulate(
         build_orchard(orchard_rng, posts=not plan.wires, slope_deg=slope_deg), plan, scenario_streams
     )
     orchard = dressing.orchard
+    support = (
+        random_stake(
+            np.random.default_rng(streams[7]),
+            crown_top_z_m=float(orchard.main_tree.mesh.vertices[:, 2].max()),
+        )
+        if stake
+        else None
+    )
+    if support is not None:
+        orchard = replace(orchard, mesh=merge_meshes([orchard.mesh, support.mesh]))
     rig = random_kinect_rig(rig_rng, sensor)
     sunlight = scenario_sunlight(plan, sun_rng, scenario_streams.light, sun)
     raycaster = SceneRaycaster.build(orchard.mesh, dressing.hanging_apples)
@@ -136,6 +151,7 @@ def _simulate(
             sunlight=sunlight,
             dressing=dressing,
             fallen_apples=layout.beside_balls,
+            stake=support,
         ),
     )
 
@@ -161,6 +177,7 @@ def simulate_capture(
     scenario: Scenario | str = Scenario.GREEN,
     sensor: str = "kinect-v2",
     slope_deg: float | None = None,
+    stake: bool = False,
 ) -> Path:
     """Write one synthetic RGB-D capture of a simulated apple tree, with its ``ground_truth.json``.
 
@@ -189,6 +206,9 @@ def simulate_capture(
     slope_deg
         The ground's slope in degrees, downhill in a random direction: a hillside orchard, whose trees and
         posts still stand upright. None: nearly level (at most 0.5 degrees), as every family's default.
+    stake
+        Stand a support stake beside the trunk (see :mod:`.stake`): a thin pole through the crown whose top
+        may stand above it, which is not the tree's.
 
     Returns
     -------
@@ -214,6 +234,7 @@ def simulate_capture(
         scenario=family,
         sensor=parse_sensor(sensor),
         slope_deg=slope_deg,
+        stake=stake,
     )
 
 
@@ -226,6 +247,7 @@ def simulate_captures(
     scenario: Scenario | str = Scenario.GREEN,
     sensor: str = "kinect-v2",
     slope_deg: float | None = None,
+    stake: bool = False,
 ) -> list[Path]:
     """Write ``count`` synthetic captures ``out/tree_000``, ``out/tree_001``, ... of different trees.
 
@@ -250,6 +272,8 @@ def simulate_captures(
         The sensor of every capture (see :func:`simulate_capture`).
     slope_deg
         The ground's slope under every tree (see :func:`simulate_capture`); None: nearly level.
+    stake
+        Stand a support stake beside every tree's trunk (see :func:`simulate_capture`).
 
     Returns
     -------
@@ -278,6 +302,7 @@ def simulate_captures(
             scenario=family,
             sensor=model,
             slope_deg=slope_deg,
+            stake=stake,
         )
         for index, tree_seed in enumerate(seeds)
     ]

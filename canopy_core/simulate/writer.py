@@ -27,6 +27,7 @@ from canopy_core.simulate.raycast import Sphere
 from canopy_core.simulate.scenario import Dressing, Scenario
 from canopy_core.simulate.scene import BALL_COLORS, BALL_DIAMETER_M, Orchard
 from canopy_core.simulate.sensor import CameraResponse, SensorFrame, Sunlight
+from canopy_core.simulate.stake import Stake
 from canopy_core.simulate.tree import TreeDimensions
 
 __all__ = ["CaptureLabels", "GroundTruth", "SimulatedView", "check_empty", "write_capture"]
@@ -64,7 +65,8 @@ class SimulatedView:
 @dataclass(frozen=True, eq=False)
 class GroundTruth:
     """What the simulation knows exactly, for ``ground_truth.json``: ``dressing`` is the scenario's (None
-    or a ``green`` one: nothing added), ``fallen_apples`` the apples laid on the ground."""
+    or a ``green`` one: nothing added), ``fallen_apples`` the apples laid on the ground, ``stake`` the
+    support stake beside the trunk (None: none)."""
 
     seed: int
     dimensions: TreeDimensions
@@ -73,6 +75,7 @@ class GroundTruth:
     sunlight: Sunlight
     dressing: Dressing | None = None
     fallen_apples: tuple[Sphere, ...] = ()
+    stake: Stake | None = None
 
 
 def _write_json(path: Path, content: dict[str, Any]) -> None:
@@ -178,6 +181,12 @@ def _ground_truth_json(truth: GroundTruth, views: Sequence[SimulatedView]) -> di
         "scene_triangles": orchard.mesh.triangle_count,
         "seed": truth.seed,
     }
+    if truth.stake is not None:
+        content["stake"] = {
+            "xy_m": list(truth.stake.xy_m),
+            "top_m": truth.stake.top_m,
+            "radius_m": truth.stake.radius_m,
+        }
     dressing = truth.dressing
     if dressing is None or dressing.plan.scenario is Scenario.GREEN:
         return content

@@ -637,6 +637,32 @@ def test_wires_on_a_hillside_climb_with_it_from_post_to_post(tmp_path: Path) -> 
         assert np.ptp(above) < 0.5 * np.ptp(posts[:, 2])
 
 
+def test_a_stake_stands_beside_the_trunk_shows_in_depth_and_is_not_the_tree(tmp_path: Path) -> None:
+    staked = simulate_capture(tmp_path / "staked", seed=2, stake=True)
+    plain = simulate_capture(tmp_path / "plain", seed=2)
+    truth = _truth(staked)
+    stake = truth["stake"]
+    assert 0.05 <= float(np.hypot(*stake["xy_m"])) <= 0.09 and 0.008 <= stake["radius_m"] <= 0.012
+    assert abs(stake["top_m"] - truth["height_m"]) <= 0.5 + 1e-9
+    # The tree's dimensions leave the stake out; nothing else of the scene changed.
+    assert {key: truth[key] for key in ("height_m", "width_m", "thickness_m")} == {
+        key: _truth(plain)[key] for key in ("height_m", "width_m", "thickness_m")
+    }
+    assert "stake" not in _truth(plain)
+
+    def near_stake(capture: Path) -> int:
+        count = 0
+        for view in load_capture(capture).views:
+            cloud = backproject(view)
+            pose = np.asarray(truth["views"][view.name]["camera_to_world"])
+            world = cloud.points_m @ pose[:3, :3].T + pose[:3, 3]
+            across = np.linalg.norm(world[:, :2] - np.array(stake["xy_m"]), axis=1)
+            count += int(np.count_nonzero((across < stake["radius_m"] + 0.01) & (world[:, 2] < stake["top_m"])))
+        return count
+
+    assert near_stake(staked) > near_stake(plain) + 20
+
+
 def test_weeds_grow_at_the_trunk_foot_below_the_crown_and_outside_the_ground_truth(family) -> None:
     capture = family("weeds")
     truth = _truth(capture)
