@@ -422,7 +422,7 @@ def _modes(
         capture.views, points, foliage, crowns, footprints, strict=True
     ):
         modes[view.name] = _metrics_or_fail(
-            view_points, leafy, view_crown, footprint, trunk_xy, config, view=view.name
+            view_points, leafy, view_crown, footprint, trunk_xy, config, view=view.name, single_view=True
         )
     modes[MERGED] = _metrics_or_fail(
         merged, merged_foliage, crown, np.concatenate(footprints), trunk_xy, config, view=None
@@ -530,7 +530,10 @@ def _metrics_or_fail(
     config: MeasureConfig,
     *,
     view: str | None,
+    single_view: bool = False,
 ) -> CanopyMetrics:
+    """The metrics of one mode's tree points, or a MeasurementError naming ``view`` (None: merged); a single
+    view's top is not judged for a pole (see :func:`canopy_metrics`)."""
     if points.shape[0] < 50:
         raise MeasurementError(
             f"only {points.shape[0]} tree points inside the region of interest",
@@ -545,6 +548,7 @@ def _metrics_or_fail(
             crown=crown,
             pixel_footprint_m=footprint,
             config=config.metrics,
+            refuse_pole_top=not single_view,
         )
     except MeasurementError as error:
         error.view = error.view or view

@@ -120,6 +120,28 @@ def highest_supported(points_m: np.ndarray, *, support_radius_m: float, support_
     )
 
 
+def thin_top_m(points_m: np.ndarray, *, top_z_m: float, slab_m: float, width_m: float) -> float:
+    """How far down from the top (``top_z_m``) the points stay as thin as a pole: the length of the run of
+    slabs ``slab_m`` high, from the top down, whose points lie (nine in ten) within ``width_m`` of their
+    horizontal median, each median within ``width_m`` of the one above. 0 when the top slab is wider.
+
+    A support stake standing above the crown is such a run over all of its height above the leaves; a
+    leader's bare tip over the few centimetres above its last leaves; a crown's top, with leaves all
+    round, not at all.
+    """
+    length, above = 0.0, None
+    while True:
+        upper = top_z_m - length
+        slab = points_m[(points_m[:, 2] <= upper) & (points_m[:, 2] > upper - slab_m)]
+        if slab.shape[0] == 0:
+            return length
+        centre = np.median(slab[:, :2], axis=0)
+        spread = float(np.percentile(np.linalg.norm(slab[:, :2] - centre, axis=1), 90))
+        if spread > width_m or (above is not None and float(np.linalg.norm(centre - above)) > width_m):
+            return length
+        length, above = length + slab_m, centre
+
+
 def _first_supported(
     tree: cKDTree, points_m: np.ndarray, order: np.ndarray, *, support_radius_m: float, support_points: int
 ) -> int:
@@ -491,6 +513,7 @@ def canopy_metrics(
     crown: np.ndarray | None = None,
     pixel_footprint_m: np.ndarray | None = None,
     config: MetricsConfig,
+    refuse_pole_top: bool = True,
 ) -> CanopyMetrics:
     """All metrics of one tree cloud in the world frame; ``foliage`` marks the points coloured as leaves.
 
@@ -505,6 +528,16 @@ def canopy_metrics(
     of the camera that saw it). The last pixel that reads the crown at an extreme (either end of W, the
     top, the lowest leaf) lies on average half a pitch inside the crown's true outline, so each extreme is
     moved out by ``config.edge_px`` pitches there; without footprints, the points' own extremes count.
+
+    With ``refuse_pole_top``, a top as thin as a pole over more than ``config.max_thin_top_m``
+    (:func:`thin_top_m`) is refused: a support stake standing above the crown. A single view's cloud is
+    not judged so (False): one view sees a leader's bare tip as a thinner line, and over a longer stretch,
+    than the views together (up to 25 cm against at most 15 cm on simulated trees).
+
+    Raises
+    ------
+    MeasurementError
+        No crown among the points, or (``refuse_pole_top``) a top as thin as a pole too far.
     """
     if crown is None:
         crown = crown_mask(
@@ -531,6 +564,26 @@ def canopy_metrics(
         tree_points, support_radius_m=config.support_radius_m, support_points=config.top_support_points
     )
     height = float(tree_points[top, 2] + edge_m[top])
+    thin = (
+        thin_top_m(
+            tree_points,
+            top_z_m=float(tree_points[top, 2]),
+            slab_m=config.support_radius_m,
+            width_m=config.pole_width_m,
+        )
+        if refuse_pole_top
+        else 0.0
+    )
+    if thin > config.max_thin_top_m and not np.isclose(thin, config.max_thin_top_m):  # whole slabs
+        raise MeasurementError(
+            f"the tree's top {thin:.2f} m is as thin as a pole (each {config.support_radius_m * 100:.0f} cm "
+            f"of it within {config.pole_width_m * 100:.0f} cm of one line), longer than a leader's bare tip "
+            f"({config.max_thin_top_m:.2f} m): most likely a support stake standing above the crown, which "
+            "would be measured as the tree's top",
+            field="metrics.max_thin_top_m",
+            hint="a stake above the crown cannot be told from the tree yet; if the leader itself is bare "
+            "that far, raise metrics.max_thin_top_m",
+        )
     base_kde = crown_base_kde(
         tree_points[:, 2], height_m=height, bandwidth_m=config.kde_bandwidth_m, threshold=config.kde_threshold
     )

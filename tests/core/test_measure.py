@@ -14,7 +14,7 @@ from canopy_core.backproject import ViewCloud
 from canopy_core.ball_selection import balls_off_trunk, far_ball
 from canopy_core.capture import load_capture
 from canopy_core.config import MeasureConfig
-from canopy_core.errors import BallNotFound, RegistrationFailed
+from canopy_core.errors import BallNotFound, MeasurementError, RegistrationFailed
 from canopy_core.measure import (
     STAGES,
     Measurement,
@@ -688,3 +688,15 @@ def test_the_wire_search_beyond_the_roi_gets_what_stands_clear_of_the_floor_out_
     beyond = _beyond_roi_points(cloud, world_from_view, config)
 
     np.testing.assert_allclose(beyond, [[2.0, 0.5, 1.7], [0.0, -2.9, 1.1]])
+
+
+def test_a_stake_standing_above_the_crown_fails_clearly_instead_of_raising_h(tmp_path: Path) -> None:
+    """Seed 4's stake stands 0.37 m above its crown: measured, H would be its top."""
+    capture = simulate_capture(tmp_path / "staked", seed=4, stake=True)
+    truth = json.loads((capture / "ground_truth.json").read_text())
+    assert truth["stake"]["top_m"] > truth["height_m"] + 0.3
+    with pytest.raises(MeasurementError, match="thin as a pole") as refused:
+        measure(capture)
+    assert refused.value.field == "metrics.max_thin_top_m"
+    allowed = measure(capture, overrides={"metrics": {"max_thin_top_m": 1.0}})
+    assert allowed.modes["merged"].height_m > truth["height_m"] + 0.25  # what it measured before

@@ -21,6 +21,7 @@ from canopy_core.metrics import (
     hull_volume,
     max_horizontal_distance,
     projected_area,
+    thin_top_m,
     voxel_volume,
 )
 
@@ -389,3 +390,46 @@ def test_a_trellis_post_beside_the_crown_is_neither_crown_nor_height() -> None:
     assert metrics.height_m == pytest.approx(alone.height_m, abs=0.005)
     assert metrics.width_m == pytest.approx(alone.width_m, abs=0.005)
     assert metrics.crown_base_m == pytest.approx(alone.crown_base_m, abs=0.005)
+
+
+def _pole(
+    rng: np.random.Generator, xy: tuple[float, float], top_m: float, radius_m: float = 0.01
+) -> np.ndarray:
+    """A stake's surface from the ground to ``top_m``, 200 points a metre."""
+    count = int(200 * top_m)
+    angle, z = rng.uniform(0, 2 * np.pi, count), rng.uniform(0.12, top_m, count)
+    return np.column_stack([xy[0] + radius_m * np.cos(angle), xy[1] + radius_m * np.sin(angle), z])
+
+
+def test_a_stake_standing_above_the_crown_is_refused_not_measured_as_its_top() -> None:
+    rng = np.random.default_rng(40)
+    tree, colors = _leafy_tree(rng)
+    crown_top = float(tree[:, 2].max())
+    stake = _pole(rng, (0.07, 0.0), crown_top + 0.3)
+    points, point_colors = _with(tree, colors, stake, (150, 150, 150))
+    assert canopy_height(points) > crown_top + 0.25  # what the top was: the stake's
+    assert thin_top_m(points, top_z_m=float(points[:, 2].max()), slab_m=0.05, width_m=0.03) >= 0.25
+    with pytest.raises(MeasurementError, match="thin as a pole") as refused:
+        _metrics(points, point_colors)
+    assert refused.value.field == "metrics.max_thin_top_m"
+    # A leader whose bare tip stands out as far may be measured by raising the bound.
+    allowed = canopy_metrics(
+        points,
+        trunk_xy_m=np.zeros(2),
+        foliage=foliage_mask(point_colors, min_index=0.15),
+        config=MetricsConfig(max_thin_top_m=0.5),
+    )
+    assert allowed.height_m > crown_top + 0.25
+
+
+def test_a_bare_leader_tip_and_a_stake_inside_the_crown_are_measured() -> None:
+    rng = np.random.default_rng(41)
+    tree, colors = _leafy_tree(rng)
+    crown_top = float(tree[:, 2].max())
+    tip = _pole(rng, (0.0, 0.0), crown_top + 0.12, radius_m=0.006)
+    tip = tip[tip[:, 2] > crown_top - 0.3]
+    hidden = _pole(rng, (0.07, 0.0), crown_top - 0.4)
+    points, point_colors = _with(tree, colors, np.vstack([tip, hidden]), (110, 95, 70))
+    assert thin_top_m(points, top_z_m=float(points[:, 2].max()), slab_m=0.05, width_m=0.03) <= 0.15
+    assert _metrics(points, point_colors).height_m > crown_top + 0.1
+    assert thin_top_m(tree, top_z_m=crown_top, slab_m=0.05, width_m=0.03) == 0.0

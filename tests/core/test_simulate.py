@@ -657,7 +657,9 @@ def test_a_stake_stands_beside_the_trunk_shows_in_depth_and_is_not_the_tree(tmp_
             pose = np.asarray(truth["views"][view.name]["camera_to_world"])
             world = cloud.points_m @ pose[:3, :3].T + pose[:3, 3]
             across = np.linalg.norm(world[:, :2] - np.array(stake["xy_m"]), axis=1)
-            count += int(np.count_nonzero((across < stake["radius_m"] + 0.01) & (world[:, 2] < stake["top_m"])))
+            count += int(
+                np.count_nonzero((across < stake["radius_m"] + 0.01) & (world[:, 2] < stake["top_m"]))
+            )
         return count
 
     assert near_stake(staked) > near_stake(plain) + 20
