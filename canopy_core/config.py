@@ -433,17 +433,19 @@ class MetricsConfig(_Section):
     pole_width_m: float = Field(
         0.03,
         gt=0.0,
-        description="A slab of the tree support_radius_m high whose points (nine in ten) lie within this "
-        "horizontal distance of their median is as thin as a pole: a support stake 1-3 cm thick with the "
-        "depth noise and the views' registration, or a leader's bare tip.",
+        description="A slab of the tree support_radius_m high (the top's own neighbourhood) whose points "
+        "(nine in ten) lie within this horizontal distance of their median, and whose median lies within it "
+        "of the slab above's, is as thin as a pole: a support stake 1-3 cm thick with the depth noise and "
+        "the views' registration, or a leader's bare tip.",
     )
     max_thin_top_m: float = Field(
         0.25,
         ge=0.0,
-        description="The tree's top may be as thin as a pole over at most this length (a leader's bare tip: "
-        "up to 25 cm on 100 simulated trees, mixed 2091 and 2096); a longer run is refused as what a support "
-        "stake standing above the crown shows, which would add its length to H and D. Raise it for trees "
-        "whose leaders are bare that far.",
+        description="The merged tree's top may be as thin as a pole over at most this length (a "
+        "leader's bare tip: up to 25 cm, with no margin, on 100 simulated trees, the first 40 of mixed "
+        "2091 and the 60 of 2096); a longer run is refused as what a support stake standing above the "
+        "crown shows, which would add its length to H and D. A one-view capture is not judged. Raise it "
+        "for trees whose leaders are bare that far.",
     )
     kde_bandwidth_m: float = Field(0.04, gt=0.0, description="Gaussian kernel bandwidth h of eq. 7, metres.")
     kde_threshold: float = Field(

@@ -425,7 +425,14 @@ def _modes(
             view_points, leafy, view_crown, footprint, trunk_xy, config, view=view.name, single_view=True
         )
     modes[MERGED] = _metrics_or_fail(
-        merged, merged_foliage, crown, np.concatenate(footprints), trunk_xy, config, view=None
+        merged,
+        merged_foliage,
+        crown,
+        np.concatenate(footprints),
+        trunk_xy,
+        config,
+        view=None,
+        single_view=len(capture.views) == 1,
     )
     measured = measured_points(merged, trunk_xy, crown=crown, foliage=merged_foliage, config=config.metrics)
     return modes, measured

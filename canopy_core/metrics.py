@@ -121,25 +121,29 @@ def highest_supported(points_m: np.ndarray, *, support_radius_m: float, support_
 
 
 def thin_top_m(points_m: np.ndarray, *, top_z_m: float, slab_m: float, width_m: float) -> float:
-    """How far down from the top (``top_z_m``) the points stay as thin as a pole: the length of the run of
-    slabs ``slab_m`` high, from the top down, whose points lie (nine in ten) within ``width_m`` of their
-    horizontal median, each median within ``width_m`` of the one above. 0 when the top slab is wider.
+    """How far down from the top (``top_z_m``) the points stay as thin as a pole: the length (whole slabs)
+    of the run of slabs ``slab_m`` high, from the top down, whose points lie (nine in ten) within
+    ``width_m`` of their horizontal median, each median within ``width_m`` of the one above. 0 when the top
+    slab is wider; an empty slab ends the run (a stake hidden there by a leaf reads short).
 
     A support stake standing above the crown is such a run over all of its height above the leaves; a
     leader's bare tip over the few centimetres above its last leaves; a crown's top, with leaves all
     round, not at all.
     """
-    length, above = 0.0, None
-    while True:
-        upper = top_z_m - length
-        slab = points_m[(points_m[:, 2] <= upper) & (points_m[:, 2] > upper - slab_m)]
+    below = points_m[points_m[:, 2] <= top_z_m]
+    slabs = int(np.ceil((top_z_m - below[:, 2].min()) / slab_m)) if below.shape[0] else 0
+    above = None
+    for count in range(slabs):
+        upper = top_z_m - count * slab_m
+        slab = below[(below[:, 2] <= upper) & (below[:, 2] > upper - slab_m)]
         if slab.shape[0] == 0:
-            return length
+            return count * slab_m
         centre = np.median(slab[:, :2], axis=0)
         spread = float(np.percentile(np.linalg.norm(slab[:, :2] - centre, axis=1), 90))
         if spread > width_m or (above is not None and float(np.linalg.norm(centre - above)) > width_m):
-            return length
-        length, above = length + slab_m, centre
+            return count * slab_m
+        above = centre
+    return slabs * slab_m
 
 
 def _first_supported(
@@ -578,9 +582,9 @@ def canopy_metrics(
     if thin > config.max_thin_top_m and not np.isclose(thin, config.max_thin_top_m):  # whole slabs
         raise MeasurementError(
             f"the tree's top {thin:.2f} m is as thin as a pole (each {config.support_radius_m * 100:.0f} cm "
-            f"of it within {config.pole_width_m * 100:.0f} cm of one line), longer than a leader's bare tip "
-            f"({config.max_thin_top_m:.2f} m): most likely a support stake standing above the crown, which "
-            "would be measured as the tree's top",
+            f"of it within {config.pole_width_m * 100:.0f} cm of its middle), longer than a leader's bare "
+            f"tip ({config.max_thin_top_m:.2f} m): most likely a support stake standing above the crown, "
+            "which would be measured as the tree's top",
             field="metrics.max_thin_top_m",
             hint="a stake above the crown cannot be told from the tree yet; if the leader itself is bare "
             "that far, raise metrics.max_thin_top_m",

@@ -42,11 +42,11 @@ _WIRE_VALUE = (0.45, 0.75)
 
 @dataclass(frozen=True)
 class Wire:
-    """One wire: its height (world z, metres) at its supports, which stand at ``supports_x_m`` along the row,
-    its diameter and y position; between two supports it hangs ``sag_per_span`` times the span lower at
-    mid-span, as a parabola (see :func:`wire_height_m`). On a hillside its supports climb ``rise_per_m``
-    metres per metre along the row, ``height_m`` being its height at x = 0: the wire runs parallel to the
-    ground from post to post, as a real trellis's does."""
+    """One wire: its height (world z, metres) at its supports on level ground, which stand at
+    ``supports_x_m`` along the row, its diameter and y position; between two supports it hangs
+    ``sag_per_span`` times the span lower at mid-span, as a parabola (see :func:`wire_height_m`). On a
+    hillside its supports climb ``rise_per_m`` metres per metre along the row, ``height_m`` being its
+    height at x = 0: the wire runs parallel to the ground from post to post, as a real trellis's does."""
 
     height_m: float
     diameter_m: float

@@ -698,5 +698,6 @@ def test_a_stake_standing_above_the_crown_fails_clearly_instead_of_raising_h(tmp
     with pytest.raises(MeasurementError, match="thin as a pole") as refused:
         measure(capture)
     assert refused.value.field == "metrics.max_thin_top_m"
+    assert refused.value.view is None  # judged on the views together, not on one alone
     allowed = measure(capture, overrides={"metrics": {"max_thin_top_m": 1.0}})
     assert allowed.modes["merged"].height_m > truth["height_m"] + 0.25  # what it measured before
