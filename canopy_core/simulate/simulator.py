@@ -81,6 +81,8 @@ def _simulate(
         random_stake(
             np.random.default_rng(streams[7]),
             crown_top_z_m=float(orchard.main_tree.mesh.vertices[:, 2].max()),
+            trunk_radius_m=orchard.main_tree.shape.trunk_radius_m,
+            lean_xy_m=orchard.main_tree.shape.lean_m,
         )
         if stake
         else None
