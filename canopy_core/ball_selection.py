@@ -55,6 +55,11 @@ by the search where fragments meet. Each costs a sphere fit per place the third 
 with many look-alikes of two colours pairs them by the thousand (13 225 pairs of 32 red and 54 yellow
 spheres in one view and 20 and 53 in the other: over a quarter of an hour), where the balls' own pair is
 among the likeliest few (at most 15 pairs in all on 30 simulated trees)."""
+_ANCHORS_PER_VIEW = _CANDIDATES_PER_COLOR**3
+"""The likeliest triangles of each view that place balls in the others (:func:`_anchors`): as many as the
+first shortlists make. The searches add spheres to the shortlists, and every triangle of them placing balls
+in every other view, which add more, ran away with three views (2099017: 44 198 triangles in one view after
+five searches, and the measurement still running after a quarter of an hour)."""
 _PLACEMENT_TOLERANCE_M = 0.05
 """A sphere found this close to where the other views place a ball is that ball: the placement errs by the
 ground's unevenness under the balls and the plane's error, a few centimetres."""
@@ -381,23 +386,39 @@ def _search_where_placed(
     another view does, not only its likeliest (apples and straw may score above the balls themselves, and
     a triangle holding one places the missing ball wrong). A sphere found there
     (:meth:`ViewBallCandidates.sphere_near`) joins that colour's shortlist however little of its colour it
-    showed. Returns, per view, the spheres added."""
+    showed. At most ``_CANDIDATES_PER_COLOR`` spheres per view and colour, the likeliest anchors' first
+    (:func:`_anchors`). Returns, per view, the spheres added."""
     added: list[list[BallCandidate]] = [[] for _ in views]
-    anchors = [(a, triangle, grounds[a]) for a, triangles in enumerate(per_view) for _, triangle in triangles]
+    anchors = _anchors(per_view, grounds)
     for target, (view, shortlist, ground) in enumerate(zip(views, shortlists, grounds, strict=True)):
         if ground is None:
             continue
         others = [(triangle, anchor_ground) for a, triangle, anchor_ground in anchors if a != target]
         for missing, color in enumerate(config.colors):
-            known = shortlist.plausible[color]
+            known, found_here = shortlist.plausible[color], 0
             for estimate, _ in _placements(shortlist, ground, others, missing, config):
+                if found_here == _CANDIDATES_PER_COLOR:
+                    break
                 if _listed_near(estimate, known, config.radius_m):
                     continue
                 found = _sphere_where_placed(view, estimate, color, config)
                 if found is not None:
                     known.append(found)
                     added[target].append(found)
+                    found_here += 1
     return added
+
+
+def _anchors(
+    per_view: list[list[tuple[float, tuple[BallCandidate, ...]]]], grounds: Sequence[GroundPlane | None]
+) -> list[tuple[int, tuple[BallCandidate, ...], GroundPlane | None]]:
+    """The triangles that place balls in the other views: each view's likeliest ``_ANCHORS_PER_VIEW``
+    (the triangles come likeliest first), with the view's index and ground."""
+    return [
+        (a, triangle, grounds[a])
+        for a, triangles in enumerate(per_view)
+        for _, triangle in triangles[:_ANCHORS_PER_VIEW]
+    ]
 
 
 def _search_on_circles(
@@ -747,11 +768,12 @@ def _place_hidden(
     seen. A placed ball scores nothing, so it completes a triangle only where no sphere does; it is no
     anchor for ICP, which then checks the pose against the surfaces, and no chosen pair of triangles may
     rest on fewer than two balls both views show (:func:`_consistent_choice`). At most
-    ``_CANDIDATES_PER_COLOR`` places per view and colour, the likeliest anchors' first. Returns, per view,
-    the balls placed."""
-    anchors = [(a, triangle, grounds[a]) for a, triangles in enumerate(per_view) for _, triangle in triangles]
+    ``_CANDIDATES_PER_COLOR`` places per view and colour, the likeliest anchors' first (:func:`_anchors`).
+    Returns, per view, the balls placed."""
     anchors = [
-        (a, triangle, ground) for a, triangle, ground in anchors if not any(c.unseen for c in triangle)
+        (a, triangle, ground)
+        for a, triangle, ground in _anchors(per_view, grounds)
+        if not any(c.unseen for c in triangle)
     ]
     wanted: list[list[tuple[str, np.ndarray, np.ndarray]]] = [[] for _ in views]
     for target, (shortlist, ground) in enumerate(zip(shortlists, grounds, strict=True)):

@@ -11,11 +11,15 @@ from scipy.spatial.transform import Rotation
 from canopy_core.backproject import ViewCloud
 from canopy_core.ball_preview import ball_report
 from canopy_core.ball_selection import (
+    _ANCHORS_PER_VIEW,
+    _CANDIDATES_PER_COLOR,
     _MAX_SHARED_PAIRS,
+    _anchors,
     _assignments,
     _carried_round_trunk,
     _search_about_shared_ball,
     _search_on_circles,
+    _search_where_placed,
     _shared_pairs,
     _Shortlist,
     _shortlist,
@@ -556,3 +560,63 @@ def test_the_pairs_two_views_share_are_bounded_and_the_likeliest_kept() -> None:
     kept = [(tuple(there[0]), tuple(here[0])) for there, here in every]
     # The balls come last in each colour's list, so their pair is found last, and stays last once kept.
     assert kept[-1] == (tuple(first_balls[0]), tuple(second_balls[0]))
+
+
+class _SpheresEverywhere(ViewBallCandidates):
+    """A view whose floor holds a sphere of every colour wherever one is sought (straw and apples laid
+    all over it): the most a search where the other views place the balls can find."""
+
+    def sphere_near(self, estimate_m: np.ndarray, color: str, config: BallConfig) -> BallCandidate | None:
+        fit = SphereFit(np.asarray(estimate_m, dtype=float), 0.05, 40, 0.003, 0.95)
+        return BallCandidate(
+            fit=fit, expected_points=70.0, color_scores={c: float(c == color) for c in COLORS}
+        )
+
+
+def test_the_search_where_other_views_place_the_balls_stays_bounded_with_look_alikes_everywhere() -> None:
+    """Three views of a floor with four look-alikes of each colour on a 0.3 m grid, each view's grid
+    shifted: every triangle of look-alikes in one view places balls all over the others, where a sphere is
+    found each time. The search carries only each view's likeliest ``_ANCHORS_PER_VIEW`` triangles and adds
+    at most ``_CANDIDATES_PER_COLOR`` spheres per view and colour; else the shortlists grow with every
+    search, their triangles by the tens of thousands (2099017, three views: 44 198 in one view, still
+    running after a quarter of an hour)."""
+    config = BallConfig()
+    rng = np.random.default_rng(3)
+
+    def look_alike(centre: np.ndarray, color: str) -> BallCandidate:
+        fit = SphereFit(centre, 0.05, int(rng.integers(30, 60)), 0.003, 0.95)
+        return BallCandidate(
+            fit=fit, expected_points=70.0, color_scores={c: float(c == color) for c in COLORS}
+        )
+
+    views, shortlists, grounds = [], [], []
+    for view in (1, 2, 3):
+        shift = 0.1 * view
+        spheres = [
+            look_alike(np.array([-0.6 + shift + 0.3 * i, 1.05, 2.6 + 0.3 * j + 0.1 * k]), color)
+            for k, color in enumerate(COLORS)
+            for i in range(2)
+            for j in range(2)
+        ]
+        candidates = _SpheresEverywhere(f"views/{view}", tuple(spheres), dict.fromkeys(COLORS, 1000), {})
+        ground = GroundPlane(point_m=np.array([0.0, 1.1, 3.0]), normal=np.array([0.0, -1.0, 0.0]))
+        views.append(candidates)
+        grounds.append(ground)
+        shortlists.append(_shortlist(candidates, config, ground=ground))
+    per_view = [_assignments(shortlist, config) for shortlist in shortlists]
+    assert all(per_view)
+    before = [{c: len(shortlist.plausible[c]) for c in COLORS} for shortlist in shortlists]
+
+    added = _search_where_placed(views, shortlists, per_view, grounds, config)
+
+    for view_added, shortlist, counts in zip(added, shortlists, before, strict=True):
+        assert view_added  # look-alikes everywhere: the search finds spheres
+        for color in COLORS:
+            assert len(shortlist.plausible[color]) - counts[color] <= _CANDIDATES_PER_COLOR
+    # A second round, on shortlists grown so, still carries the likeliest triangles only.
+    grown = [_assignments(shortlist, config) for shortlist in shortlists]
+    assert all(len(triangles) > _ANCHORS_PER_VIEW for triangles in grown)
+    anchors = _anchors(grown, grounds)
+    for view in range(3):
+        carried = [triangle for index, triangle, _ in anchors if index == view]
+        assert carried == [triangle for _, triangle in grown[view][:_ANCHORS_PER_VIEW]]
