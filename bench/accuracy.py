@@ -31,7 +31,7 @@ import numpy as np
 
 from canopy_core.errors import CanopyError
 from canopy_core.measure import Measurement, measure
-from canopy_core.simulate import Scenario, simulate_capture
+from canopy_core.simulate import NoLayout, Scenario, simulate_capture
 from canopy_core.simulate.camera import SENSORS
 
 METRICS = (("H", "height_m"), ("W", "width_m"), ("D", "thickness_m"))
@@ -44,9 +44,18 @@ WRONG_SPHERE_M = 0.05
 
 def _measure_one(args: tuple[Path, int, int, str, str, float | None, bool]) -> dict:
     folder, seed, views, scenario, sensor, slope_deg, stake = args
-    capture = simulate_capture(
-        folder, seed=seed, n_views=views, scenario=scenario, sensor=sensor, slope_deg=slope_deg, stake=stake
-    )
+    try:
+        capture = simulate_capture(
+            folder,
+            seed=seed,
+            n_views=views,
+            scenario=scenario,
+            sensor=sensor,
+            slope_deg=slope_deg,
+            stake=stake,
+        )
+    except NoLayout as exc:  # the simulator's, not the measurement's: that seed has no capture
+        return {"seed": seed, "unsimulated": str(exc)}
     truth = json.loads((capture / "ground_truth.json").read_text())
     try:
         result = measure(capture)
@@ -87,16 +96,20 @@ def _worst_error(result: dict) -> tuple[str, float]:
 
 
 def _report(scenario: str, results: list[dict], options: argparse.Namespace) -> None:
+    unsimulated = [r for r in results if "unsimulated" in r]
+    results = [r for r in results if "unsimulated" not in r]
     failed = [r for r in results if "error" in r]
     done = [r for r in results if "error" not in r]
     wrong = [r for r in done if _worst_error(r)[1] > CONFIDENTLY_WRONG]
     wrong_spheres = [r for r in done if max(r["ball_errors_m"].values()) > WRONG_SPHERE_M]
-    share = 100 * len(done) / len(results)
+    share = 100 * len(done) / max(len(results), 1)
     print(
         f"\n== {scenario}: {len(done)} of {len(results)} measured ({share:.1f} %), {len(failed)} failed, "
         f"{len(wrong)} confidently wrong (>{CONFIDENTLY_WRONG:.0%} off, no error), "
         f"{len(wrong_spheres)} registered on another sphere taken for a ball (>{WRONG_SPHERE_M * 100:.0f} cm)"
     )
+    for r in unsimulated:
+        print(f"  not simulated (left out of every figure): {r['unsimulated']}")
     for reason, count in Counter(r["reason"] for r in failed).most_common():
         print(f"  failed {count}x: {reason}")
     for r in failed if options.details else []:

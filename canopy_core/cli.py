@@ -184,7 +184,7 @@ def simulate(
 ) -> None:
     """Write synthetic captures of procedural apple trees, each with its ground_truth.json."""
     require_extra("sim", "simulate")
-    from canopy_core.simulate import simulate_captures
+    from canopy_core.simulate import NoLayout, simulate_captures
     from canopy_core.simulate.camera import parse_sensor
     from canopy_core.simulate.scenario import parse_scenario
 
@@ -208,6 +208,9 @@ def simulate(
     except (FileExistsError, ValueError) as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from exc
+    except NoLayout as exc:
+        typer.echo(f"error: {exc}; try another seed", err=True)
+        raise typer.Exit(1) from exc
     for path in paths:
         typer.echo(str(path))
 

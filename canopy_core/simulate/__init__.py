@@ -11,7 +11,8 @@ grass, fallen leaves), :mod:`.fruit` (apples), :mod:`.trellis` (wires) and :mod:
 :mod:`.simulator` runs it all from one seed.
 """
 
+from canopy_core.simulate.placement import NoLayout
 from canopy_core.simulate.scenario import Scenario
 from canopy_core.simulate.simulator import simulate_capture, simulate_captures
 
-__all__ = ["Scenario", "simulate_capture", "simulate_captures"]
+__all__ = ["NoLayout", "Scenario", "simulate_capture", "simulate_captures"]

@@ -18,7 +18,7 @@ import numpy as np
 from canopy_core.capture import CameraModel
 from canopy_core.simulate.camera import Sensor, parse_sensor, random_kinect_rig
 from canopy_core.simulate.mesh import merge_meshes
-from canopy_core.simulate.placement import place_balls_and_cameras
+from canopy_core.simulate.placement import NoLayout, place_balls_and_cameras
 from canopy_core.simulate.raycast import SceneRaycaster, ShadowCaster
 from canopy_core.simulate.scenario import (
     Scenario,
@@ -92,15 +92,18 @@ def _simulate(
     rig = random_kinect_rig(rig_rng, sensor)
     sunlight = scenario_sunlight(plan, sun_rng, scenario_streams.light, sun)
     raycaster = SceneRaycaster.build(orchard.mesh, dressing.hanging_apples)
-    layout = place_balls_and_cameras(
-        layout_rng,
-        orchard,
-        raycaster,
-        rig,
-        n_views=n_views,
-        native_color=native_color,
-        beside_balls=partial(fallen_fruit_beside, dressing, scenario_streams) if plan.fruit else None,
-    )
+    try:
+        layout = place_balls_and_cameras(
+            layout_rng,
+            orchard,
+            raycaster,
+            rig,
+            n_views=n_views,
+            native_color=native_color,
+            beside_balls=partial(fallen_fruit_beside, dressing, scenario_streams) if plan.fruit else None,
+        )
+    except NoLayout as exc:
+        raise NoLayout(f"seed {seed}, {n_views} views: {exc}") from exc
     spheres = (*layout.balls, *dressing.hanging_apples, *layout.beside_balls)
     scene = raycaster.with_spheres(spheres)
     shadows = ShadowCaster.build(orchard.mesh, spheres) if plan.shadows else None
@@ -224,6 +227,8 @@ def simulate_capture(
         ``sensor`` names no such thing.
     FileExistsError
         If ``out_dir`` already holds files.
+    NoLayout
+        If no placement of the balls and cameras shows every ball to every view (nothing is written).
     """
     family = _checked(n_views, sun, scenario, slope_deg)
     return _simulate(
@@ -287,6 +292,8 @@ def simulate_captures(
     ValueError
         If ``count`` < 0, ``n_views`` < 1, ``slope_deg`` outside [0, 30), or ``scenario`` or ``sensor``
         names no such thing.
+    NoLayout
+        If one seed's balls and cameras cannot be placed (the captures before it are written).
     """
     if count < 0:
         raise ValueError(f"count must not be negative, got {count}")
