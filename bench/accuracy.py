@@ -104,7 +104,9 @@ def _report(scenario: str, results: list[dict], options: argparse.Namespace) -> 
     wrong_spheres = [r for r in done if max(r["ball_errors_m"].values()) > WRONG_SPHERE_M]
     share = 100 * len(done) / max(len(results), 1)
     print(
-        f"\n== {scenario}: {len(done)} of {len(results)} measured ({share:.1f} %), {len(failed)} failed, "
+        f"\n== {scenario}: {len(done)} of {len(results)} measured ({share:.1f} %)"
+        + (f" ({len(unsimulated)} more not simulated)" if unsimulated else "")
+        + f", {len(failed)} failed, "
         f"{len(wrong)} confidently wrong (>{CONFIDENTLY_WRONG:.0%} off, no error), "
         f"{len(wrong_spheres)} registered on another sphere taken for a ball (>{WRONG_SPHERE_M * 100:.0f} cm)"
     )

@@ -382,12 +382,12 @@ def _search_where_placed(
     grounds: Sequence[GroundPlane | None],
     config: BallConfig,
 ) -> list[list[BallCandidate]]:
-    """Look for each view's balls where the other views place them (:func:`_placements`): every triangle of
-    another view does, not only its likeliest (apples and straw may score above the balls themselves, and
-    a triangle holding one places the missing ball wrong). A sphere found there
-    (:meth:`ViewBallCandidates.sphere_near`) joins that colour's shortlist however little of its colour it
-    showed. At most ``_CANDIDATES_PER_COLOR`` spheres per view and colour, the likeliest anchors' first
-    (:func:`_anchors`). Returns, per view, the spheres added."""
+    """Look for each view's balls where the other views place them (:func:`_placements`): the likeliest
+    ``_ANCHORS_PER_VIEW`` triangles of each other view do, not only the likeliest one (apples and straw may
+    score above the balls themselves, and a triangle holding one places the missing ball wrong). A sphere
+    found there (:meth:`ViewBallCandidates.sphere_near`) joins that colour's shortlist however little of its
+    colour it showed. Each call adds at most ``_CANDIDATES_PER_COLOR`` spheres per view and colour, the
+    likeliest anchors' first (:func:`_anchors`). Returns, per view, the spheres added."""
     added: list[list[BallCandidate]] = [[] for _ in views]
     anchors = _anchors(per_view, grounds)
     for target, (view, shortlist, ground) in enumerate(zip(views, shortlists, grounds, strict=True)):
@@ -412,12 +412,15 @@ def _search_where_placed(
 def _anchors(
     per_view: list[list[tuple[float, tuple[BallCandidate, ...]]]], grounds: Sequence[GroundPlane | None]
 ) -> list[tuple[int, tuple[BallCandidate, ...], GroundPlane | None]]:
-    """The triangles that place balls in the other views: each view's likeliest ``_ANCHORS_PER_VIEW``
-    (the triangles come likeliest first), with the view's index and ground."""
+    """The triangles that place balls in the other views: each view's likeliest ``_ANCHORS_PER_VIEW`` (the
+    triangles come likeliest first), with the view's index and ground, rank by rank across the views (every
+    view's likeliest, then every view's second...), so that with three views or more a cap on what one
+    search adds is not spent on one view's weaker triangles before another view's likeliest."""
     return [
-        (a, triangle, grounds[a])
-        for a, triangles in enumerate(per_view)
-        for _, triangle in triangles[:_ANCHORS_PER_VIEW]
+        (a, per_view[a][rank][1], grounds[a])
+        for rank in range(_ANCHORS_PER_VIEW)
+        for a in range(len(per_view))
+        if rank < len(per_view[a])
     ]
 
 

@@ -209,7 +209,7 @@ def simulate(
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from exc
     except NoLayout as exc:
-        typer.echo(f"error: {exc}; try another seed", err=True)
+        typer.echo(f"error: {exc}; try another --seed into a new folder", err=True)
         raise typer.Exit(1) from exc
     for path in paths:
         typer.echo(str(path))

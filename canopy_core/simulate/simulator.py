@@ -300,18 +300,24 @@ def simulate_captures(
     family = _checked(n_views, None, scenario, slope_deg)
     model = parse_sensor(sensor)
     seeds = [int(child.generate_state(1)[0]) for child in np.random.SeedSequence(seed).spawn(count)]
-    return [
-        _simulate(
-            Path(out) / f"tree_{index:03d}",
-            seed=tree_seed,
-            tree=f"T{index:03d}",
-            n_views=n_views,
-            native_color=True,
-            sun=None,
-            scenario=family,
-            sensor=model,
-            slope_deg=slope_deg,
-            stake=stake,
-        )
-        for index, tree_seed in enumerate(seeds)
-    ]
+    written: list[Path] = []
+    for index, tree_seed in enumerate(seeds):
+        folder = Path(out) / f"tree_{index:03d}"
+        try:
+            written.append(
+                _simulate(
+                    folder,
+                    seed=tree_seed,
+                    tree=f"T{index:03d}",
+                    n_views=n_views,
+                    native_color=True,
+                    sun=None,
+                    scenario=family,
+                    sensor=model,
+                    slope_deg=slope_deg,
+                    stake=stake,
+                )
+            )
+        except NoLayout as exc:
+            raise NoLayout(f"{folder.name} ({exc}); the {index} capture(s) before it are written") from exc
+    return written

@@ -8,13 +8,13 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from canopy_core import ball_selection
 from canopy_core.backproject import ViewCloud
 from canopy_core.ball_preview import ball_report
 from canopy_core.ball_selection import (
     _ANCHORS_PER_VIEW,
     _CANDIDATES_PER_COLOR,
     _MAX_SHARED_PAIRS,
-    _anchors,
     _assignments,
     _carried_round_trunk,
     _search_about_shared_ball,
@@ -573,7 +573,9 @@ class _SpheresEverywhere(ViewBallCandidates):
         )
 
 
-def test_the_search_where_other_views_place_the_balls_stays_bounded_with_look_alikes_everywhere() -> None:
+def test_the_search_where_other_views_place_the_balls_stays_bounded_with_look_alikes_everywhere(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
     """Three views of a floor with four look-alikes of each colour on a 0.3 m grid, each view's grid
     shifted: every triangle of look-alikes in one view places balls all over the others, where a sphere is
     found each time. The search carries only each view's likeliest ``_ANCHORS_PER_VIEW`` triangles and adds
@@ -613,10 +615,22 @@ def test_the_search_where_other_views_place_the_balls_stays_bounded_with_look_al
         assert view_added  # look-alikes everywhere: the search finds spheres
         for color in COLORS:
             assert len(shortlist.plausible[color]) - counts[color] <= _CANDIDATES_PER_COLOR
-    # A second round, on shortlists grown so, still carries the likeliest triangles only.
+    # A second round, on shortlists grown so, carries each other view's likeliest triangles only, every
+    # view's likeliest before any view's second.
     grown = [_assignments(shortlist, config) for shortlist in shortlists]
     assert all(len(triangles) > _ANCHORS_PER_VIEW for triangles in grown)
-    anchors = _anchors(grown, grounds)
-    for view in range(3):
-        carried = [triangle for index, triangle, _ in anchors if index == view]
-        assert carried == [triangle for _, triangle in grown[view][:_ANCHORS_PER_VIEW]]
+    carried: list[list[tuple[BallCandidate, ...]]] = []
+
+    def placements(shortlist, ground, anchors, missing, config):  # type: ignore[no-untyped-def]
+        carried.append([triangle for triangle, _ in anchors])
+        return every_placement(shortlist, ground, anchors, missing, config)
+
+    every_placement = ball_selection._placements
+    monkeypatch.setattr(ball_selection, "_placements", placements)
+    _search_where_placed(views, shortlists, grown, grounds, config)
+
+    assert carried and all(len(anchors) == 2 * _ANCHORS_PER_VIEW for anchors in carried)
+    first_two = [triangle for _, triangle in grown[1][:1] + grown[2][:1]]
+    assert carried[0][:2] == first_two  # the first view's search: the other two views' likeliest first
+    for view in (1, 2):
+        assert {id(t) for t in carried[0]} >= {id(t) for _, t in grown[view][:_ANCHORS_PER_VIEW]}

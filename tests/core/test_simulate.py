@@ -267,8 +267,8 @@ def test_balls_hidden_from_every_view_at_every_try_raise_no_layout_and_the_cli_s
     result = CliRunner().invoke(app, ["simulate", str(tmp_path / "out"), "--seed", "5"])
     assert result.exit_code == 1
     (line,) = result.output.strip().splitlines()
-    assert line.startswith("error: seed ") and ", 2 views: no layout in 3 attempts" in line
-    assert line.endswith("try another seed")
+    assert line.startswith("error: tree_000 (seed ") and ", 2 views: no layout in 3 attempts" in line
+    assert line.endswith("the 0 capture(s) before it are written; try another --seed into a new folder")
     assert not (tmp_path / "out" / "tree_000").exists()
 
 
