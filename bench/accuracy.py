@@ -97,14 +97,14 @@ def _worst_error(result: dict) -> tuple[str, float]:
 
 def _report(scenario: str, results: list[dict], options: argparse.Namespace) -> None:
     unsimulated = [r for r in results if "unsimulated" in r]
-    results = [r for r in results if "unsimulated" not in r]
-    failed = [r for r in results if "error" in r]
-    done = [r for r in results if "error" not in r]
+    simulated = [r for r in results if "unsimulated" not in r]
+    failed = [r for r in simulated if "error" in r]
+    done = [r for r in simulated if "error" not in r]
     wrong = [r for r in done if _worst_error(r)[1] > CONFIDENTLY_WRONG]
     wrong_spheres = [r for r in done if max(r["ball_errors_m"].values()) > WRONG_SPHERE_M]
-    share = 100 * len(done) / max(len(results), 1)
+    share = 100 * len(done) / max(len(simulated), 1)
     print(
-        f"\n== {scenario}: {len(done)} of {len(results)} measured ({share:.1f} %)"
+        f"\n== {scenario}: {len(done)} of {len(simulated)} measured ({share:.1f} %)"
         + (f" ({len(unsimulated)} more not simulated)" if unsimulated else "")
         + f", {len(failed)} failed, "
         f"{len(wrong)} confidently wrong (>{CONFIDENTLY_WRONG:.0%} off, no error), "

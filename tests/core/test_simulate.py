@@ -715,8 +715,8 @@ def test_a_stake_stands_beside_the_trunk_shows_in_depth_and_is_not_the_tree(tmp_
 
 
 def test_a_stake_stands_on_the_side_the_trunk_leans_away_from() -> None:
-    """A leaning trunk, thinner higher up, never grows through its stake: the stake stands within a quarter
-    turn of the direction opposite the lean, as far off the bark at the foot as drawn."""
+    """The lean carries a trunk off its stake: the stake stands within a quarter turn of the direction
+    opposite the lean, touching the bark at the foot to 3 cm off it."""
     rng = np.random.default_rng(7)
     for lean in ((0.08, 0.0), (0.0, -0.05), (-0.03, 0.06)):
         for _ in range(50):
