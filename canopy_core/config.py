@@ -471,6 +471,39 @@ class MetricsConfig(_Section):
         description="Foliage this close to the trunk's axis (suckers, bark coloured by the leaves behind it) "
         "joins the crown only within crown_link_m of it, and never links anything to it (weeds at the foot).",
     )
+    trunk_slab_m: float = Field(
+        0.1,
+        gt=0.0,
+        description="The trunk's axis is followed up from its foot in slabs this high: the bark's circle is "
+        "found in each (a trunk bends a few centimetres between nodes, 10-30 cm apart).",
+    )
+    trunk_max_lean_deg: float = Field(
+        35.0,
+        ge=0.0,
+        lt=90.0,
+        description="The trunk's axis leans at most this far from vertical between the slabs where it is "
+        "found, degrees: trellis systems that slant their trees (Tatura, V-trellis) plant them at up to 30; "
+        "0 keeps the axis plumb above the foot.",
+    )
+    trunk_max_gap_m: float = Field(
+        0.3,
+        ge=0.0,
+        description="The trunk's axis ends where no slab has shown its bark's circle over this height: a "
+        "sucker or a tuft of weeds hides the trunk over a few decimetres, the crown for good (a circle found "
+        "above it is a branch or the leader's tip, not the trunk).",
+    )
+    trunk_bark_tolerance_m: float = Field(
+        0.015,
+        gt=0.0,
+        description="A point lies on a slab's bark circle within this distance of it: the depth noise at a "
+        "few metres and the bark's roughness.",
+    )
+    trunk_min_points: int = Field(
+        20,
+        ge=3,
+        description="A slab's bark circle needs at least this many points on it (a trunk seen by one view "
+        "over 10 cm shows hundreds).",
+    )
     crown_piece_min_voxels: int = Field(
         5,
         ge=1,

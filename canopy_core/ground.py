@@ -22,6 +22,7 @@ __all__ = [
     "GroundHeightMap",
     "GroundPlane",
     "ball_plane",
+    "fit_circle",
     "fit_ground_frame",
     "ground_height_map",
     "horizontal_distance",
@@ -85,10 +86,17 @@ class GroundFrame:
     (grass and weeds hiding the trunk) when no trunk-sized circle holds them; 0 when nothing stands at a
     trunk's height near the balls, and ``trunk_xy_m`` is only the balls' centre."""
     ground_height_at_trunk_m: float
-    trunk_on_bark: bool
-    """Whether the trunk was found on its bark (a trunk-sized circle), not only as the low slice's median."""
+    trunk_radius_m: float | None
+    """The radius of the circle the trunk's bark makes in the low slice; None when no trunk-sized circle was
+    found there and the trunk is only the slice's median."""
     origin_at_trunk: bool = False
     """Whether the origin stands at the trunk's foot (see :meth:`round_trunk`; ``trunk_xy_m`` then 0)."""
+
+    @property
+    def trunk_on_bark(self) -> bool:
+        """Whether the trunk was found on its bark (a trunk-sized circle), not only as the low slice's
+        median."""
+        return self.trunk_radius_m is not None
 
     def round_trunk(self) -> GroundFrame:
         """This frame with its origin moved to the trunk's foot where its bark was found (else itself): the
@@ -263,7 +271,7 @@ def fit_ground_frame(
             contact = centroid - ((centroid - plane_point) @ up) * up
     rotation = _world_rotation(up, forward_hint)
     ground_world = (points_m[ground] - contact) @ rotation.T
-    trunk_xy, trunk_points, on_bark = _trunk_position(points_m, contact, rotation)
+    trunk_xy, trunk_points, trunk_radius = _trunk_position(points_m, contact, rotation)
     ground_height = _local_ground_height(ground_world, trunk_xy, config.trunk_radius_m)
     world_from_reference = np.eye(4)
     world_from_reference[:3, :3] = rotation
@@ -278,7 +286,7 @@ def fit_ground_frame(
         ball_heights_m=tuple(float(height) for height in heights),
         trunk_xy_m=(float(trunk_xy[0]), float(trunk_xy[1])),
         trunk_points=trunk_points,
-        trunk_on_bark=on_bark,
+        trunk_radius_m=trunk_radius,
         ground_height_at_trunk_m=float(ground_height),
     )
 
@@ -331,23 +339,24 @@ def _world_rotation(up: np.ndarray, forward_hint: np.ndarray) -> np.ndarray:
 
 def _trunk_position(
     points_m: np.ndarray, contact: np.ndarray, rotation: np.ndarray
-) -> tuple[np.ndarray, int, bool]:
+) -> tuple[np.ndarray, int, float | None]:
     """Horizontal position of the trunk (the frame's with its origin at ``contact``), the points it was found
-    from, and whether on its bark: the centre of the circle of a trunk's size that the most points of a
-    low slice near the balls' centroid lie on with nothing inside it (:func:`_bark_support`; seen from
-    above, a trunk's bark is an arc or a ring, grass and weeds are scattered dots). The median of the slice,
-    which grass and weeds pull aside, when no such circle is found."""
+    from, and its radius where found on its bark: the centre of the circle of a trunk's size that the most
+    points of a low slice near the balls' centroid lie on with nothing inside it (:func:`_bark_support`; seen
+    from above, a trunk's bark is an arc or a ring, grass and weeds are scattered dots). The median of the
+    slice, which grass and weeds pull aside, and no radius, when no such circle is found."""
     world = (points_m - contact) @ rotation.T
     low, high = _TRUNK_SLICE_M
     in_slice = (world[:, 2] > low) & (world[:, 2] < high)
     in_slice &= np.linalg.norm(world[:, :2], axis=1) < _TRUNK_SEARCH_RADIUS_M
     if np.count_nonzero(in_slice) < _TRUNK_MIN_POINTS:
-        return np.zeros(2), 0, False
+        return np.zeros(2), 0, None
     xy = world[in_slice, :2]
     found = _bark_circle(xy)
     if found is None:
-        return np.median(xy, axis=0), int(xy.shape[0]), False
-    return found[0], found[1], True
+        return np.median(xy, axis=0), int(xy.shape[0]), None
+    centre, radius, on_arc = found
+    return centre, on_arc, radius
 
 
 def view_trunk_foot(
@@ -362,7 +371,7 @@ def view_trunk_foot(
     if xy.shape[0] < _TRUNK_MIN_POINTS:
         return None
     found = _bark_circle(xy)
-    if found is None or found[1] < _TRUNK_MIN_POINTS:
+    if found is None or found[2] < _TRUNK_MIN_POINTS:
         return None
     return ground.point_m + axes @ found[0]
 
@@ -403,10 +412,10 @@ def _trunk_slice(
     return (points_m[in_slice] - ground.point_m) @ axes, axes
 
 
-def _bark_circle(xy: np.ndarray) -> tuple[np.ndarray, int] | None:
-    """The centre of the trunk-sized circle that the most of ``(N, 2)`` slice points lie on with nothing
-    inside it, refitted on its arc, and how many points lie on that arc; None when no three nearby points
-    make a circle of a trunk's size."""
+def _bark_circle(xy: np.ndarray) -> tuple[np.ndarray, float, int] | None:
+    """The centre and radius of the trunk-sized circle that the most of ``(N, 2)`` slice points lie on with
+    nothing inside it, refitted on its arc, and how many points lie on that arc; None when no three nearby
+    points make a circle of a trunk's size."""
     rng = np.random.default_rng(0)
     scored = xy[rng.permutation(xy.shape[0])[:_TRUNK_SCORED_POINTS]]
     centres, radii = _trunk_circles(scored, rng)
@@ -418,7 +427,7 @@ def _bark_circle(xy: np.ndarray) -> tuple[np.ndarray, int] | None:
         )
     )
     on_arc = xy[np.abs(np.linalg.norm(xy - centres[best], axis=1) - radii[best]) < _TRUNK_TOLERANCE_M]
-    return _fit_circle(on_arc), int(on_arc.shape[0])
+    return *fit_circle(on_arc), int(on_arc.shape[0])
 
 
 def _trunk_circles(xy: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
@@ -464,11 +473,13 @@ def _circumcircles(triples: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return centres, np.linalg.norm(a - centres, axis=1)
 
 
-def _fit_circle(xy: np.ndarray) -> np.ndarray:
-    """Centre of the least-squares circle through ``(N, 2)`` points (x² + y² = 2ax + 2by + c, linear)."""
+def fit_circle(xy: np.ndarray) -> tuple[np.ndarray, float]:
+    """Centre and radius of the least-squares circle through ``(N, 2)`` points (x² + y² = 2ax + 2by + c,
+    linear in a, b and c; the radius is √(c + a² + b²))."""
     design = np.column_stack([xy, np.ones(xy.shape[0])])
     solution, *_ = np.linalg.lstsq(design, (xy**2).sum(axis=1), rcond=None)
-    return solution[:2] / 2.0
+    centre = solution[:2] / 2.0
+    return centre, float(np.sqrt(max(solution[2] + centre @ centre, 0.0)))
 
 
 def _local_ground_height(ground_world: np.ndarray, trunk_xy: np.ndarray, radius_m: float) -> float:

@@ -47,6 +47,7 @@ from canopy_core.refine import IcpRefinement
 from canopy_core.register import apply
 from canopy_core.segment import find_wires, tree_component, wire_mask
 from canopy_core.spheres import SphereFit
+from canopy_core.trunk_axis import TrunkAxis, follow_trunk
 from canopy_core.visibility import seen_through
 
 __all__ = [
@@ -285,7 +286,13 @@ def measure(
         trunk_xy,
         config,
     )
-    modes, measured = _modes(capture, roi_points, roi_colors, tree_masks, world_from_view, trunk_xy, config)
+    trunk = follow_trunk(
+        np.concatenate([points[mask] for points, mask in zip(roi_points, tree_masks, strict=True)]),
+        trunk_xy,
+        foot_radius_m=ground.trunk_radius_m,
+        config=config.metrics,
+    )
+    modes, measured = _modes(capture, roi_points, roi_colors, tree_masks, world_from_view, trunk, config)
     for kinds, mask, view_measured in zip(
         point_classes,
         tree_masks,
@@ -373,7 +380,7 @@ def _modes(
     roi_colors: list[np.ndarray],
     tree_masks: list[np.ndarray],
     world_from_view: list[np.ndarray],
-    trunk_xy: np.ndarray,
+    trunk: TrunkAxis,
     config: MeasureConfig,
 ) -> tuple[dict[str, CanopyMetrics], np.ndarray]:
     """The metrics of each view's tree points alone, and of all views merged (the paper's V1, V2, V1+V2);
@@ -396,9 +403,9 @@ def _modes(
     merged, merged_foliage = np.concatenate(points), np.concatenate(foliage)
     crown = crown_mask(
         merged,
-        trunk_xy,
+        trunk,
         candidates=crown_candidates(
-            merged, trunk_xy, foliage=merged_foliage, min_radius_m=config.metrics.crown_base_min_radius_m
+            merged, trunk, foliage=merged_foliage, min_radius_m=config.metrics.crown_base_min_radius_m
         ),
         config=config.metrics,
         seen_through=np.concatenate(
@@ -422,19 +429,19 @@ def _modes(
         capture.views, points, foliage, crowns, footprints, strict=True
     ):
         modes[view.name] = _metrics_or_fail(
-            view_points, leafy, view_crown, footprint, trunk_xy, config, view=view.name, single_view=True
+            view_points, leafy, view_crown, footprint, trunk, config, view=view.name, single_view=True
         )
     modes[MERGED] = _metrics_or_fail(
         merged,
         merged_foliage,
         crown,
         np.concatenate(footprints),
-        trunk_xy,
+        trunk,
         config,
         view=None,
         single_view=len(capture.views) == 1,
     )
-    measured = measured_points(merged, trunk_xy, crown=crown, foliage=merged_foliage, config=config.metrics)
+    measured = measured_points(merged, trunk, crown=crown, foliage=merged_foliage, config=config.metrics)
     return modes, measured
 
 
@@ -533,7 +540,7 @@ def _metrics_or_fail(
     foliage: np.ndarray,
     crown: np.ndarray,
     footprint: np.ndarray,
-    trunk_xy: np.ndarray,
+    trunk: TrunkAxis,
     config: MeasureConfig,
     *,
     view: str | None,
@@ -550,7 +557,7 @@ def _metrics_or_fail(
     try:
         return canopy_metrics(
             points,
-            trunk_xy_m=trunk_xy,
+            trunk=trunk,
             foliage=foliage,
             crown=crown,
             pixel_footprint_m=footprint,

@@ -25,6 +25,7 @@ from canopy_core.config import MetricsConfig
 from canopy_core.errors import MeasurementError
 from canopy_core.filters import with_neighbours
 from canopy_core.segment import is_wire_piece
+from canopy_core.trunk_axis import TrunkAxis
 from canopy_core.voxels import occupied_voxels
 
 __all__ = [
@@ -270,16 +271,17 @@ def crown_base_kde(z_m: np.ndarray, *, height_m: float, bandwidth_m: float, thre
 
 
 def crown_candidates(
-    points_m: np.ndarray, trunk_xy_m: np.ndarray, *, foliage: np.ndarray | None = None, min_radius_m: float
+    points_m: np.ndarray, trunk: TrunkAxis, *, foliage: np.ndarray | None = None, min_radius_m: float
 ) -> np.ndarray:
     """Mask of the points that may be crown: foliage, or anything spreading away from the trunk.
 
     A point is a candidate when its colour is foliage (``foliage`` mask, see :mod:`canopy_core.foliage`) or
-    when it lies farther than ``min_radius_m`` from the trunk's axis (branches and leaves spread out; the
-    trunk does not), which also serves points without colour. Ground vegetation, suckers and fallen fruit
+    when it lies farther than ``min_radius_m`` from the trunk's axis at its height (``trunk``, see
+    :mod:`canopy_core.trunk_axis`; branches and leaves spread out, the trunk does not, however it leans),
+    which also serves points without colour. Ground vegetation, suckers and fallen fruit
     are candidates too: :func:`crown_mask` tells them from the crown.
     """
-    candidates = np.linalg.norm(points_m[:, :2] - trunk_xy_m, axis=1) > min_radius_m
+    candidates = trunk.distance_m(points_m) > min_radius_m
     if foliage is not None:
         candidates |= foliage
     return candidates
@@ -287,7 +289,7 @@ def crown_candidates(
 
 def crown_mask(
     points_m: np.ndarray,
-    trunk_xy_m: np.ndarray,
+    trunk: TrunkAxis,
     *,
     candidates: np.ndarray,
     config: MetricsConfig,
@@ -310,7 +312,8 @@ def crown_mask(
     weed beside the trunk; no crown hangs there), nor a body that is a level straight line longer
     than a leaf (a piece of trellis wire beside the crown that the wire search missed; see
     :func:`canopy_core.segment.is_wire_piece`). Candidates inside the column (within
-    ``config.trunk_column_radius_m`` of the trunk's axis: suckers, leaves next to the trunk, bark coloured
+    ``config.trunk_column_radius_m`` of the trunk's axis at their height, which follows a leaning or bending
+    trunk up, so that the bark's outline stays inside: suckers, leaves next to the trunk, bark coloured
     by the leaves behind it) join the crown when they are within the link distance of it, but never link
     anything to it: not what grows at the trunk's foot, not each other up the trunk. With no candidate
     outside the column, the crown is all the candidates.
@@ -319,8 +322,8 @@ def crown_mask(
     ----------
     points_m
         ``(N, 3)`` tree points in the world frame.
-    trunk_xy_m
-        The trunk's horizontal position.
+    trunk
+        The trunk's axis (see :func:`canopy_core.trunk_axis.follow_trunk`).
     candidates
         Boolean mask over ``points_m`` of the points that may be crown.
     config
@@ -334,7 +337,7 @@ def crown_mask(
         Boolean mask over ``points_m``.
     """
     link_m, trunk_column_m = config.crown_link_m, config.trunk_column_radius_m
-    radial = np.linalg.norm(points_m[:, :2] - trunk_xy_m, axis=1)
+    radial = trunk.distance_m(points_m)
     in_column = radial <= trunk_column_m
     seen = candidates & ~in_column
     if seen_through is not None:
@@ -512,7 +515,7 @@ def voxel_volume(points_m: np.ndarray, *, voxel_m: float) -> float:
 def canopy_metrics(
     points_m: np.ndarray,
     *,
-    trunk_xy_m: np.ndarray,
+    trunk: TrunkAxis,
     foliage: np.ndarray | None = None,
     crown: np.ndarray | None = None,
     pixel_footprint_m: np.ndarray | None = None,
@@ -547,13 +550,13 @@ def canopy_metrics(
     if crown is None:
         crown = crown_mask(
             points_m,
-            trunk_xy_m,
+            trunk,
             candidates=crown_candidates(
-                points_m, trunk_xy_m, foliage=foliage, min_radius_m=config.crown_base_min_radius_m
+                points_m, trunk, foliage=foliage, min_radius_m=config.crown_base_min_radius_m
             ),
             config=config,
         )
-    kept = measured_points(points_m, trunk_xy_m, crown=crown, foliage=foliage, config=config)
+    kept = measured_points(points_m, trunk, crown=crown, foliage=foliage, config=config)
     if not crown.any():
         raise MeasurementError(
             f"no crown among the {points_m.shape[0]} tree points: only ground vegetation, fruit or the trunk",
@@ -633,7 +636,7 @@ def canopy_metrics(
 
 def measured_points(
     points_m: np.ndarray,
-    trunk_xy_m: np.ndarray,
+    trunk: TrunkAxis,
     *,
     crown: np.ndarray,
     foliage: np.ndarray | None,
@@ -643,6 +646,6 @@ def measured_points(
     the candidates apart from the crown (ground vegetation, suckers, fallen fruit, stray points below it)
     are not the tree."""
     candidates = crown_candidates(
-        points_m, trunk_xy_m, foliage=foliage, min_radius_m=config.crown_base_min_radius_m
+        points_m, trunk, foliage=foliage, min_radius_m=config.crown_base_min_radius_m
     )
     return np.asarray(crown | ~candidates)

@@ -71,7 +71,7 @@ def _alignment(choices: list[BallChoice], icp: list[IcpRefinement | None]) -> Al
         trunk_xy_m=(0.0, 0.0),
         trunk_points=100,
         ground_height_at_trunk_m=0.0,
-        trunk_on_bark=True,
+        trunk_radius_m=0.06,
     )
     n = len(choices)
     return Alignment(

@@ -5,6 +5,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
+import pytest
 from scipy.spatial.transform import Rotation
 
 from canopy_core.ball_selection import ball_off_ground, balls_off_ground, no_trunk_round_balls
@@ -93,6 +94,7 @@ def test_the_tree_is_measured_in_a_frame_whose_origin_is_its_trunk_foot() -> Non
     )
     frame, recovered_from_world = _fitted_frame(points_world, balls_world)
     assert frame.trunk_on_bark and not frame.origin_at_trunk
+    assert frame.trunk_radius_m == pytest.approx(0.07, abs=0.005)  # the scene's trunk, seen by one camera
     assert np.linalg.norm(frame.trunk_xy_m) > 0.1
 
     round_trunk = frame.round_trunk()

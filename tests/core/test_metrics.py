@@ -24,6 +24,7 @@ from canopy_core.metrics import (
     thin_top_m,
     voxel_volume,
 )
+from canopy_core.trunk_axis import TrunkAxis
 
 
 def _ellipsoid_crown(
@@ -86,7 +87,7 @@ def test_each_extreme_moves_out_half_a_pixel_so_w_h_and_d_are_unbiased_over_samp
             results.append(
                 canopy_metrics(
                     hedge,
-                    trunk_xy_m=np.zeros(2),
+                    trunk=PLUMB,
                     crown=everything,
                     pixel_footprint_m=footprint,
                     config=MetricsConfig(),
@@ -131,7 +132,7 @@ def test_volumes_and_area_of_a_filled_box() -> None:
 
 def test_canopy_metrics_reports_paper_and_extra_metrics_consistently() -> None:
     tree = _tree(np.random.default_rng(6))
-    metrics = canopy_metrics(tree, trunk_xy_m=np.zeros(2), config=MetricsConfig())
+    metrics = canopy_metrics(tree, trunk=PLUMB, config=MetricsConfig())
     assert metrics.height_m == pytest.approx(3.0, abs=0.02)
     assert metrics.width_m == pytest.approx(1.6, abs=0.03)
     assert metrics.thickness_m == pytest.approx(metrics.height_m - metrics.crown_base_m)
@@ -146,9 +147,7 @@ def test_the_marks_say_where_h_w_and_d_were_read() -> None:
     half-pitch move, on the farthest pair of the points' horizontal hull (found here by brute force)."""
     tree = _tree(np.random.default_rng(7))
     footprint = np.full(tree.shape[0], 0.008)
-    metrics = canopy_metrics(
-        tree, trunk_xy_m=np.zeros(2), pixel_footprint_m=footprint, config=MetricsConfig()
-    )
+    metrics = canopy_metrics(tree, trunk=PLUMB, pixel_footprint_m=footprint, config=MetricsConfig())
     marks = metrics.marks
     assert marks.top_m[2] == metrics.height_m
     assert marks.crown_base_point_m[2] == metrics.crown_base_m
@@ -171,16 +170,16 @@ def test_the_marks_say_where_h_w_and_d_were_read() -> None:
 BARK, LEAF, WEED, APPLE = (95, 75, 55), (60, 125, 45), (80, 140, 50), (190, 40, 35)
 CROWN_BASE_M = 1.06
 CROWN_POINTS = 20000
+PLUMB = TrunkAxis.vertical((0.0, 0.0))
+"""The trunk of these trees: plumb above the origin."""
 
 
 def _crown(points: np.ndarray, foliage: np.ndarray) -> np.ndarray:
     config = MetricsConfig()
-    candidates = crown_candidates(
-        points, np.zeros(2), foliage=foliage, min_radius_m=config.crown_base_min_radius_m
-    )
+    candidates = crown_candidates(points, PLUMB, foliage=foliage, min_radius_m=config.crown_base_min_radius_m)
     return crown_mask(
         points,
-        np.zeros(2),
+        PLUMB,
         candidates=candidates,
         config=config,
     )
@@ -214,14 +213,14 @@ def _with(
 
 def _metrics(points: np.ndarray, colors: np.ndarray) -> CanopyMetrics:
     return canopy_metrics(
-        points, trunk_xy_m=np.zeros(2), foliage=foliage_mask(colors, min_index=0.15), config=MetricsConfig()
+        points, trunk=PLUMB, foliage=foliage_mask(colors, min_index=0.15), config=MetricsConfig()
     )
 
 
 def _old_crown_base(points: np.ndarray, colors: np.ndarray) -> float:
     """The lowest supported point that is foliage or away from the trunk, as the crown base was until now."""
     candidates = crown_candidates(
-        points, np.zeros(2), foliage=foliage_mask(colors, min_index=0.15), min_radius_m=0.25
+        points, PLUMB, foliage=foliage_mask(colors, min_index=0.15), min_radius_m=0.25
     )
     return crown_base_geometric(points, candidates, support_radius_m=0.05, support_points=4)
 
@@ -361,7 +360,7 @@ def test_points_without_any_crown_fail_clearly_instead_of_measuring_nothing() ->
     with pytest.raises(MeasurementError, match="no crown among the 200 tree points"):
         canopy_metrics(
             weeds,
-            trunk_xy_m=np.zeros(2),
+            trunk=PLUMB,
             foliage=np.ones(200, dtype=bool),
             crown=np.zeros(200, dtype=bool),
             config=MetricsConfig(),
@@ -382,7 +381,7 @@ def test_a_trellis_post_beside_the_crown_is_neither_crown_nor_height() -> None:
 
     grounded = canopy_metrics(
         points,
-        trunk_xy_m=np.zeros(2),
+        trunk=PLUMB,
         foliage=foliage_mask(point_colors, min_index=0.15),
         config=MetricsConfig(crown_piece_min_bottom_m=0.0),
     )
@@ -415,7 +414,7 @@ def test_a_stake_standing_above_the_crown_is_refused_not_measured_as_its_top() -
     # A leader whose bare tip stands out as far may be measured by raising the bound.
     allowed = canopy_metrics(
         points,
-        trunk_xy_m=np.zeros(2),
+        trunk=PLUMB,
         foliage=foliage_mask(point_colors, min_index=0.15),
         config=MetricsConfig(max_thin_top_m=0.5),
     )
