@@ -161,7 +161,7 @@ def _slab_circle(
             return None
         centre, radius = fit_circle(on_circle)
     distance = np.linalg.norm(xy - centre, axis=1)
-    on_circle_count = np.count_nonzero(np.abs(distance - radius) < tolerance_m)
+    on_circle_count = int(np.count_nonzero(np.abs(distance - radius) < tolerance_m))
     inside = np.count_nonzero(distance < radius - tolerance_m)
     if on_circle_count < min_points or inside > _INSIDE_SHARE * on_circle_count:
         return None
