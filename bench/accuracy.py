@@ -15,6 +15,7 @@ tape and pole, a different kind of number.
     .venv/bin/python bench/accuracy.py --scenario all --count 10     # every family, one after another
     .venv/bin/python bench/accuracy.py --scenario mixed --sensor azure-kinect-nfov-binned  # another camera
     .venv/bin/python bench/accuracy.py --scenario mixed --slope-deg 6  # a hillside orchard
+    .venv/bin/python bench/accuracy.py --scenario mixed --lean-deg 8  # trees leaning from their foot
     .venv/bin/python bench/accuracy.py --scenario mixed --stake  # a support stake beside every trunk
 """
 
@@ -42,8 +43,8 @@ WRONG_SPHERE_M = 0.05
 """A ball chosen this far from the true ball's centre (in its view) is another sphere taken for it."""
 
 
-def _measure_one(args: tuple[Path, int, int, str, str, float | None, bool]) -> dict:
-    folder, seed, views, scenario, sensor, slope_deg, stake = args
+def _measure_one(args: tuple[Path, int, int, str, str, float | None, float | None, bool]) -> dict:
+    folder, seed, views, scenario, sensor, slope_deg, lean_deg, stake = args
     try:
         capture = simulate_capture(
             folder,
@@ -52,6 +53,7 @@ def _measure_one(args: tuple[Path, int, int, str, str, float | None, bool]) -> d
             scenario=scenario,
             sensor=sensor,
             slope_deg=slope_deg,
+            lean_deg=lean_deg,
             stake=stake,
         )
     except NoLayout as exc:  # the simulator's, not the measurement's: that seed has no capture
@@ -158,6 +160,12 @@ def main() -> None:
         help="Ground slope in degrees under every tree (default: nearly level, at most 0.5 degrees).",
     )
     parser.add_argument(
+        "--lean-deg",
+        type=float,
+        help="Every tree leans this far from vertical from its foot, in a random direction (default: its "
+        "trunk stands upright).",
+    )
+    parser.add_argument(
         "--stake",
         action="store_true",
         help="A support stake beside every trunk (its top may be above the crown).",
@@ -172,6 +180,7 @@ def main() -> None:
             if options.slope_deg is None
             else f"ground sloping {options.slope_deg:g} degrees"
         )
+        + ("" if options.lean_deg is None else f", trees leaning {options.lean_deg:g} degrees")
         + (", a stake beside every trunk" if options.stake else "")
         + f", seeds {options.seed * 1000} to {options.seed * 1000 + options.count - 1}"
     )
@@ -185,6 +194,7 @@ def main() -> None:
                     scenario,
                     options.sensor,
                     options.slope_deg,
+                    options.lean_deg,
                     options.stake,
                 )
                 for i in range(options.count)

@@ -174,6 +174,13 @@ def simulate(
             "upright). Default: nearly level, at most 0.5 degrees."
         ),
     ] = None,
+    lean_deg: Annotated[
+        float | None,
+        typer.Option(
+            help="Lean every tree this far from vertical from its foot, trunk and crown, in a random "
+            "direction (a slanted planting, or a tree pushed over by wind). Default: trunks stand upright."
+        ),
+    ] = None,
     stake: Annotated[
         bool,
         typer.Option(
@@ -203,6 +210,7 @@ def simulate(
             scenario=family,
             sensor=sensor,
             slope_deg=slope_deg,
+            lean_deg=lean_deg,
             stake=stake,
         )
     except (FileExistsError, ValueError) as exc:

@@ -117,13 +117,21 @@ def post_span_m(neighbour: Tree) -> tuple[float, float]:
     return _POST_MIN_DISTANCE_M, min(2.4, abs(float(neighbour.base[0])) - 0.8)
 
 
-def build_orchard(rng: np.random.Generator, *, posts: bool = True, slope_deg: float | None = None) -> Orchard:
+def build_orchard(
+    rng: np.random.Generator,
+    *,
+    posts: bool = True,
+    slope_deg: float | None = None,
+    foot_lean_per_m: tuple[float, float] = (0.0, 0.0),
+) -> Orchard:
     """Draw a stretch of orchard row: ground (level, or of ``slope_deg``: see :func:`random_ground`), the
-    main tree at the origin, a neighbour on each side 3-4 m away along x, and (if ``posts``; a trellis with
-    wires brings its own) trellis posts between them at least 1.6 m from the main trunk. Trees and posts
-    stand upright whatever the slope."""
+    main tree at the origin, leaning from its foot by ``foot_lean_per_m`` (see ``TreeShape``), a
+    neighbour on each side 3-4 m away along x, and (if ``posts``; a trellis with wires brings its own)
+    trellis posts between them at least 1.6 m from the main trunk. Posts and neighbours stand upright
+    whatever the slope, and so does the main tree unless told to lean."""
     ground = random_ground(rng, slope_deg=slope_deg)
-    main_tree = build_tree(random_tree_shape(rng), rng, base=np.zeros(3))
+    shape = replace(random_tree_shape(rng), foot_lean_per_m=foot_lean_per_m)
+    main_tree = build_tree(shape, rng, base=np.zeros(3))
     main_points = cKDTree(main_tree.mesh.vertices)
     neighbours = tuple(_neighbour(rng, ground, main_points, side) for side in (-1, 1))
     post_meshes: list[tuple[Mesh, tuple[float, float, float]]] = []

@@ -33,7 +33,7 @@ from canopy_core.simulate.scenario import (
 from canopy_core.simulate.scene import build_orchard
 from canopy_core.simulate.sensor import capture_frame
 from canopy_core.simulate.stake import random_stake
-from canopy_core.simulate.tree import tree_dimensions
+from canopy_core.simulate.tree import random_lean, tree_dimensions
 from canopy_core.simulate.writer import CaptureLabels, GroundTruth, SimulatedView, check_empty, write_capture
 
 __all__ = ["simulate_capture", "simulate_captures"]
@@ -44,6 +44,9 @@ _DEPTH_SCALE = 1000.0
 _FIRST_DAY = datetime(2026, 9, 1, 7, 0, tzinfo=UTC)
 _STEEPEST_SLOPE_DEG = 30.0
 """Steeper than this, orchards stand on terraces (each level again): no slope the simulator draws."""
+_STEEPEST_LEAN_DEG = 45.0
+"""Trellis systems that slant their trees (Tatura, V-trellis) plant them at up to 30 degrees from vertical;
+a tree leaning further has fallen."""
 
 
 def _captured_at(rng: np.random.Generator) -> str:
@@ -62,19 +65,30 @@ def _simulate(
     scenario: Scenario,
     sensor: Sensor,
     slope_deg: float | None,
+    lean_deg: float | None,
     stake: bool,
 ) -> Path:
     check_empty(out_dir)
     # The first six streams are the plain scene's, as they always were; the seventh is the scenario's, the
-    # eighth the stake's (spawned children depend only on their index: the others are as they were).
-    streams = np.random.SeedSequence(seed).spawn(8)
+    # eighth the stake's, the ninth the lean's (spawned children depend only on their index: the others are
+    # as they were, and a leaning tree is the same tree as the upright one of its seed).
+    streams = np.random.SeedSequence(seed).spawn(9)
     orchard_rng, rig_rng, sun_rng, layout_rng, sensor_rng, label_rng = (
         np.random.default_rng(stream) for stream in streams[:6]
     )
     scenario_streams = ScenarioStreams.spawn(streams[6])
     plan = plan_scenario(scenario, scenario_streams.plan)
     dressing = dress_orchard(
-        build_orchard(orchard_rng, posts=not plan.wires, slope_deg=slope_deg), plan, scenario_streams
+        build_orchard(
+            orchard_rng,
+            posts=not plan.wires,
+            slope_deg=slope_deg,
+            foot_lean_per_m=(0.0, 0.0)
+            if lean_deg is None
+            else random_lean(np.random.default_rng(streams[8]), lean_deg=lean_deg),
+        ),
+        plan,
+        scenario_streams,
     )
     orchard = dressing.orchard
     support = (
@@ -82,7 +96,7 @@ def _simulate(
             np.random.default_rng(streams[7]),
             crown_top_z_m=float(orchard.main_tree.mesh.vertices[:, 2].max()),
             trunk_radius_m=orchard.main_tree.shape.trunk_radius_m,
-            lean_xy_m=orchard.main_tree.shape.lean_m,
+            lean_xy_m=orchard.main_tree.shape.top_offset_m,
         )
         if stake
         else None
@@ -161,7 +175,9 @@ def _simulate(
     )
 
 
-def _checked(n_views: int, sun: float | None, scenario: Scenario | str, slope_deg: float | None) -> Scenario:
+def _checked(
+    n_views: int, sun: float | None, scenario: Scenario | str, slope_deg: float | None, lean_deg: float | None
+) -> Scenario:
     """The scenario named ``scenario``, after checking the options (ValueError if one is wrong)."""
     if n_views < 1:
         raise ValueError(f"n_views must be at least 1, got {n_views}")
@@ -169,6 +185,8 @@ def _checked(n_views: int, sun: float | None, scenario: Scenario | str, slope_de
         raise ValueError(f"sun must be in [0, 1], got {sun}")
     if slope_deg is not None and not 0.0 <= slope_deg < _STEEPEST_SLOPE_DEG:
         raise ValueError(f"slope_deg must be in [0, {_STEEPEST_SLOPE_DEG:g}), got {slope_deg}")
+    if lean_deg is not None and not 0.0 <= lean_deg < _STEEPEST_LEAN_DEG:
+        raise ValueError(f"lean_deg must be in [0, {_STEEPEST_LEAN_DEG:g}), got {lean_deg}")
     return parse_scenario(scenario)
 
 
@@ -182,6 +200,7 @@ def simulate_capture(
     scenario: Scenario | str = Scenario.GREEN,
     sensor: str = "kinect-v2",
     slope_deg: float | None = None,
+    lean_deg: float | None = None,
     stake: bool = False,
 ) -> Path:
     """Write one synthetic RGB-D capture of a simulated apple tree, with its ``ground_truth.json``.
@@ -211,6 +230,11 @@ def simulate_capture(
     slope_deg
         The ground's slope in degrees, downhill in a random direction: a hillside orchard, whose trees and
         posts still stand upright. None: nearly level (at most 0.5 degrees), as every family's default.
+    lean_deg
+        The tree leans this far from vertical from its foot, trunk and crown, in a random direction: a
+        tree planted or trained at a slant, or pushed over by wind and crop. None: its trunk stands
+        upright (its crown leans by at most 8 cm), as every family's default. The same seed grows the same
+        tree, leaning or not.
     stake
         Stand a support stake beside the trunk (see :mod:`.stake`): a thin pole through the crown whose top
         may stand above it, which is not the tree's.
@@ -223,14 +247,14 @@ def simulate_capture(
     Raises
     ------
     ValueError
-        If ``n_views`` < 1, ``sun`` is outside [0, 1], ``slope_deg`` outside [0, 30), or ``scenario`` or
-        ``sensor`` names no such thing.
+        If ``n_views`` < 1, ``sun`` is outside [0, 1], ``slope_deg`` outside [0, 30), ``lean_deg`` outside
+        [0, 45), or ``scenario`` or ``sensor`` names no such thing.
     FileExistsError
         If ``out_dir`` already holds files.
     NoLayout
         If no placement of the balls and cameras shows every ball to every view (nothing is written).
     """
-    family = _checked(n_views, sun, scenario, slope_deg)
+    family = _checked(n_views, sun, scenario, slope_deg, lean_deg)
     return _simulate(
         Path(out_dir),
         seed=seed,
@@ -241,6 +265,7 @@ def simulate_capture(
         scenario=family,
         sensor=parse_sensor(sensor),
         slope_deg=slope_deg,
+        lean_deg=lean_deg,
         stake=stake,
     )
 
@@ -254,6 +279,7 @@ def simulate_captures(
     scenario: Scenario | str = Scenario.GREEN,
     sensor: str = "kinect-v2",
     slope_deg: float | None = None,
+    lean_deg: float | None = None,
     stake: bool = False,
 ) -> list[Path]:
     """Write ``count`` synthetic captures ``out/tree_000``, ``out/tree_001``, ... of different trees.
@@ -279,6 +305,8 @@ def simulate_captures(
         The sensor of every capture (see :func:`simulate_capture`).
     slope_deg
         The ground's slope under every tree (see :func:`simulate_capture`); None: nearly level.
+    lean_deg
+        Every tree's lean from its foot (see :func:`simulate_capture`); None: upright.
     stake
         Stand a support stake beside every tree's trunk (see :func:`simulate_capture`).
 
@@ -290,14 +318,14 @@ def simulate_captures(
     Raises
     ------
     ValueError
-        If ``count`` < 0, ``n_views`` < 1, ``slope_deg`` outside [0, 30), or ``scenario`` or ``sensor``
-        names no such thing.
+        If ``count`` < 0, ``n_views`` < 1, ``slope_deg`` outside [0, 30), ``lean_deg`` outside [0, 45), or
+        ``scenario`` or ``sensor`` names no such thing.
     NoLayout
         If one seed's balls and cameras cannot be placed (the captures before it are written).
     """
     if count < 0:
         raise ValueError(f"count must not be negative, got {count}")
-    family = _checked(n_views, None, scenario, slope_deg)
+    family = _checked(n_views, None, scenario, slope_deg, lean_deg)
     model = parse_sensor(sensor)
     seeds = [int(child.generate_state(1)[0]) for child in np.random.SeedSequence(seed).spawn(count)]
     written: list[Path] = []
@@ -315,6 +343,7 @@ def simulate_captures(
                     scenario=family,
                     sensor=model,
                     slope_deg=slope_deg,
+                    lean_deg=lean_deg,
                     stake=stake,
                 )
             )

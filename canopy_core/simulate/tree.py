@@ -27,6 +27,7 @@ __all__ = [
     "TreeDimensions",
     "TreeShape",
     "build_tree",
+    "random_lean",
     "random_tree_shape",
     "tree_dimensions",
 ]
@@ -77,7 +78,9 @@ class TreeShape:
 
     The crown envelope spans ``crown_base_m`` to ``top_m`` in height; its horizontal section is an ellipse
     of semi-axes ``radius_along_row_m`` (x) and ``radius_across_row_m`` (y) times the form's profile,
-    modulated by two lobes and shifted by the lean, which grows linearly to ``lean_m`` at the top.
+    modulated by two lobes and shifted by the lean, which grows linearly to ``lean_m`` at the top. A tree
+    that leans from its foot (``foot_lean_per_m``: its trunk and crown shift this far horizontally per
+    metre of height) carries the whole of it over with the height.
     """
 
     form: CrownForm
@@ -94,11 +97,20 @@ class TreeShape:
     cluster_spread_m: float
     leaf_hue_deg: float
     branch_count: int
+    foot_lean_per_m: tuple[float, float] = (0.0, 0.0)
 
     @property
     def crown_height_m(self) -> float:
         """Height of the crown envelope."""
         return self.top_m - self.crown_base_m
+
+    @property
+    def top_offset_m(self) -> tuple[float, float]:
+        """How far the tree's axis at its top stands off its foot, horizontally: both leans together."""
+        return (
+            self.lean_m[0] + self.foot_lean_per_m[0] * self.top_m,
+            self.lean_m[1] + self.foot_lean_per_m[1] * self.top_m,
+        )
 
 
 @dataclass(frozen=True, eq=False)
@@ -160,6 +172,14 @@ def random_tree_shape(rng: np.random.Generator) -> TreeShape:
     )
 
 
+def random_lean(rng: np.random.Generator, *, lean_deg: float) -> tuple[float, float]:
+    """A lean of ``lean_deg`` from vertical in a random direction, as :attr:`TreeShape.foot_lean_per_m`
+    (the horizontal shift per metre of height)."""
+    azimuth = rng.uniform(0.0, 2 * np.pi)
+    shift = float(np.tan(np.radians(lean_deg)))
+    return shift * float(np.cos(azimuth)), shift * float(np.sin(azimuth))
+
+
 def _raw_profile(form: CrownForm, t: np.ndarray) -> np.ndarray:
     if form is CrownForm.SPINDLE:
         return (1.0 - t) ** 0.85 * np.minimum(1.0, 0.6 + 2.0 * t)
@@ -191,7 +211,12 @@ def _lobes(shape: TreeShape, azimuth: np.ndarray) -> np.ndarray:
 
 
 def _crown_axis_xy(shape: TreeShape, t: np.ndarray) -> np.ndarray:
-    return np.clip(t, 0.0, 1.0)[..., None] * np.asarray(shape.lean_m)
+    """The tree's axis at relative height ``t`` (of the crown; below 0 the trunk): the crown's lean, and the
+    whole tree's from its foot."""
+    height_m = shape.crown_base_m + np.asarray(t) * shape.crown_height_m
+    return np.clip(t, 0.0, 1.0)[..., None] * np.asarray(shape.lean_m) + height_m[..., None] * np.asarray(
+        shape.foot_lean_per_m
+    )
 
 
 def _crown_coordinates(shape: TreeShape, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -223,7 +248,11 @@ def _crown_point(shape: TreeShape, t: np.ndarray, fraction: np.ndarray, azimuth:
 
 
 def _crown_box(shape: TreeShape) -> tuple[np.ndarray, np.ndarray]:
-    reach = np.array([shape.radius_along_row_m, shape.radius_across_row_m]) + np.abs(shape.lean_m)
+    reach = (
+        np.array([shape.radius_along_row_m, shape.radius_across_row_m])
+        + np.abs(shape.lean_m)
+        + np.abs(shape.foot_lean_per_m) * shape.top_m
+    )
     return (
         np.array([-reach[0], -reach[1], shape.crown_base_m]),
         np.array([reach[0], reach[1], shape.top_m]),

@@ -181,6 +181,8 @@ def _ground_truth_json(truth: GroundTruth, views: Sequence[SimulatedView]) -> di
         "scene_triangles": orchard.mesh.triangle_count,
         "seed": truth.seed,
     }
+    if main.shape.foot_lean_per_m != (0.0, 0.0):
+        content["tree"]["foot_lean_per_m"] = list(main.shape.foot_lean_per_m)
     if truth.stake is not None:
         content["stake"] = {
             "xy_m": list(truth.stake.xy_m),

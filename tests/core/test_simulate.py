@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+from dataclasses import replace
 from datetime import datetime
 from pathlib import Path
 
@@ -49,7 +50,7 @@ from canopy_core.simulate.sensor import (
     depth_image,
 )
 from canopy_core.simulate.stake import random_stake
-from canopy_core.simulate.tree import Tree, build_tree, random_tree_shape, tree_dimensions
+from canopy_core.simulate.tree import Tree, build_tree, random_lean, random_tree_shape, tree_dimensions
 
 SMALL_CAMERA = Intrinsics(width=160, height=120, fx=100.0, fy=100.0, cx=80.0, cy=60.0)
 LOOKING_ALONG_Y = camera_pose(np.array([0.0, 0.0, 1.0]), yaw_rad=np.pi / 2, pitch_rad=0.0, roll_rad=0.0)
@@ -156,6 +157,9 @@ def test_refuses_bad_options_and_a_folder_that_holds_files(tmp_path: Path) -> No
     for slope in (-1.0, 30.0):
         with pytest.raises(ValueError, match="slope_deg"):
             simulate_capture(tmp_path / "a", seed=1, slope_deg=slope)
+    for lean in (-1.0, 45.0):
+        with pytest.raises(ValueError, match="lean_deg"):
+            simulate_capture(tmp_path / "a", seed=1, lean_deg=lean)
     (tmp_path / "full").mkdir()
     (tmp_path / "full" / "capture.json").write_text("{}")
     with pytest.raises(FileExistsError):
@@ -369,6 +373,26 @@ def test_trees_stand_upright_on_a_hillside_and_the_balls_rest_on_it(tmp_path: Pa
     assert tilt_of_balls_deg(level) < 3.0
     # The tree is measured upright from its trunk base, whatever the ground does around it.
     assert truth["height_m"] == level["height_m"] and truth["width_m"] == level["width_m"]
+
+
+def test_a_leaning_tree_is_its_upright_self_carried_over_with_the_height() -> None:
+    shape = random_tree_shape(np.random.default_rng(4))
+    lean = random_lean(np.random.default_rng(5), lean_deg=25.0)
+    assert float(np.hypot(*lean)) == pytest.approx(np.tan(np.radians(25.0)))
+    upright = build_tree(shape, np.random.default_rng(6), base=np.zeros(3))
+    leaning = build_tree(replace(shape, foot_lean_per_m=lean), np.random.default_rng(6), base=np.zeros(3))
+
+    # The wood is drawn alike, vertex for vertex; below the crown it is the trunk alone, whose rings of
+    # vertices stand their height times the lean off the upright trunk's (its wander the same draws).
+    below_crown = (upright.wood.vertices[:, 2] > -0.01) & (upright.wood.vertices[:, 2] < shape.crown_base_m)
+    heights = np.unique(np.round(upright.wood.vertices[below_crown, 2], 3))
+    assert heights.size >= 2 and heights.max() > 0.3
+    for z in heights:
+        ring = below_crown & (np.abs(upright.wood.vertices[:, 2] - z) < 5e-4)
+        shift = leaning.wood.vertices[ring, :2].mean(axis=0) - upright.wood.vertices[ring, :2].mean(axis=0)
+        np.testing.assert_allclose(shift, z * np.asarray(lean), atol=0.01)
+    top_offset = np.asarray(leaning.shape.top_offset_m) - np.asarray(upright.shape.top_offset_m)
+    np.testing.assert_allclose(top_offset, shape.top_m * np.asarray(lean))
 
 
 # --- the sensor ---------------------------------------------------------------------------------------
