@@ -150,10 +150,10 @@ def _slab_circle(
     steps = np.arange(-reach_m, reach_m + tolerance_m / 2, tolerance_m)
     grid = centre + np.stack(np.meshgrid(steps, steps), axis=-1).reshape(-1, 2)
     grid = grid[np.linalg.norm(grid - centre, axis=1) <= reach_m + tolerance_m / 2]
-    distance = np.linalg.norm(xy[None, :, :] - grid[:, None, :], axis=2)
-    scores = np.count_nonzero(np.abs(distance - radius) < tolerance_m, axis=1) - np.count_nonzero(
-        distance < radius - tolerance_m, axis=1
-    )
+    squared_m2 = (xy[None, :, 0] - grid[:, None, 0]) ** 2 + (xy[None, :, 1] - grid[:, None, 1]) ** 2
+    within = np.count_nonzero(squared_m2 < (radius + tolerance_m) ** 2, axis=1)
+    inside = np.count_nonzero(squared_m2 < max(radius - tolerance_m, 0.0) ** 2, axis=1)
+    scores = within - 2 * inside  # on the circle (within it, not inside) less inside
     centre = grid[int(np.argmax(scores))]
     for _ in range(_REFINEMENTS):
         on_circle = xy[np.abs(np.linalg.norm(xy - centre, axis=1) - radius) < tolerance_m]
