@@ -488,15 +488,17 @@ class MetricsConfig(_Section):
     trunk_max_gap_m: float = Field(
         0.3,
         ge=0.0,
-        description="The trunk's axis ends where no slab has shown its bark's circle over this height: a "
-        "sucker or a tuft of weeds hides the trunk over a few decimetres, the crown for good (a circle found "
-        "above it is a branch or the leader's tip, not the trunk).",
+        description="The trunk's axis ends once more than this height of slabs in a row have not shown "
+        "its bark's circle: a sucker or a tuft of weeds hides the trunk over a few decimetres, the crown "
+        "for good (a circle found above it is a branch or the leader's tip, not the trunk).",
     )
     trunk_bark_tolerance_m: float = Field(
         0.015,
         gt=0.0,
-        description="A point lies on a slab's bark circle within this distance of it: the depth noise at a "
-        "few metres and the bark's roughness.",
+        description="A point lies on a slab's bark circle within this distance of it, and a slab's circle is "
+        "as wide as the last one's within it: the depth noise at a few metres, the bark's roughness, and the "
+        "views' registration, whose small turn shifts them apart with the height (the foot's own circle, "
+        "at the height the views are refined on, takes 1 cm).",
     )
     trunk_min_points: int = Field(
         20,

@@ -18,6 +18,8 @@ from canopy_core.config import GroundConfig
 
 __all__ = [
     "CAMERA_UP",
+    "TRUNK_RADIUS_RANGE_M",
+    "TRUNK_SLICE_M",
     "GroundFrame",
     "GroundHeightMap",
     "GroundPlane",
@@ -35,12 +37,14 @@ CAMERA_UP = np.array([0.0, -1.0, 0.0])
 """Up for a camera held roughly level, in its own frame (OpenCV axes: y points down)."""
 _RANSAC_SAMPLE = 20_000
 _RANSAC_HYPOTHESES = 200
-_TRUNK_SLICE_M = (0.12, 0.35)
+TRUNK_SLICE_M = (0.12, 0.35)
+"""The trunk's foot is found in this slice above the ground (m): above the grass and the balls, below the
+lowest branches."""
 _TRUNK_SEARCH_RADIUS_M = 0.8
 _TRUNK_EXCLUSION_M = 0.12
 _TRUNK_HYPOTHESES = 1000
 """Circles tried through three points of the trunk's slice."""
-_TRUNK_RADIUS_RANGE_M = (0.02, 0.2)
+TRUNK_RADIUS_RANGE_M = (0.02, 0.2)
 """Trunks of fruit trees, from a whip to an old tree."""
 _TRUNK_TOLERANCE_M = 0.01
 """Bark lies this close to the trunk's circle seen from above (depth noise, a slight lean over the slice)."""
@@ -346,7 +350,7 @@ def _trunk_position(
     from above, a trunk's bark is an arc or a ring, grass and weeds are scattered dots). The median of the
     slice, which grass and weeds pull aside, and no radius, when no such circle is found."""
     world = (points_m - contact) @ rotation.T
-    low, high = _TRUNK_SLICE_M
+    low, high = TRUNK_SLICE_M
     in_slice = (world[:, 2] > low) & (world[:, 2] < high)
     in_slice &= np.linalg.norm(world[:, :2], axis=1) < _TRUNK_SEARCH_RADIUS_M
     if np.count_nonzero(in_slice) < _TRUNK_MIN_POINTS:
@@ -363,7 +367,7 @@ def view_trunk_foot(
     points_m: np.ndarray, ground: GroundPlane, near_m: np.ndarray, reach_m: float
 ) -> np.ndarray | None:
     """Where the trunk's axis meets one view's ground plane, in its camera frame, before the views are
-    registered: the circle of a trunk's size in the view's low slice (``_TRUNK_SLICE_M`` above ``ground``)
+    registered: the circle of a trunk's size in the view's low slice (``TRUNK_SLICE_M`` above ``ground``)
     within ``reach_m`` of ``near_m`` (a ball: the crew lays them round the trunk) that the most bark points
     lie on with nothing inside (:func:`_bark_support`). One view sees an arc of the trunk, which fixes its
     circle as well as a ring does. None when the slice holds too few points or no trunk-sized circle."""
@@ -383,7 +387,7 @@ def sees_trunk_near(points_m: np.ndarray, ground: GroundPlane, centre_m: np.ndar
     nothing inside (:func:`_bark_support`). A view's best circle may be a trellis post, or a clump of
     suckers beside a trunk that weeds half hide; this asks whether it also sees a trunk where another view
     puts one."""
-    xy, axes = _trunk_slice(points_m, ground, centre_m, within_m + _TRUNK_RADIUS_RANGE_M[1])
+    xy, axes = _trunk_slice(points_m, ground, centre_m, within_m + TRUNK_RADIUS_RANGE_M[1])
     if xy.shape[0] < _TRUNK_MIN_POINTS:
         return False
     xy -= (centre_m - ground.point_m) @ axes
@@ -398,12 +402,12 @@ def sees_trunk_near(points_m: np.ndarray, ground: GroundPlane, centre_m: np.ndar
 def _trunk_slice(
     points_m: np.ndarray, ground: GroundPlane, near_m: np.ndarray, reach_m: float
 ) -> tuple[np.ndarray, np.ndarray]:
-    """One view's points of the trunk's low slice (``_TRUNK_SLICE_M`` above ``ground``) within ``reach_m``
+    """One view's points of the trunk's low slice (``TRUNK_SLICE_M`` above ``ground``) within ``reach_m``
     of ``near_m`` horizontally, as ``(N, 2)`` coordinates on the ground plane from ``ground.point_m``, and
     the ``(3, 2)`` axes that carry such coordinates back into the camera frame."""
     up = ground.normal / np.linalg.norm(ground.normal)
     height = (points_m - ground.point_m) @ up
-    low, high = _TRUNK_SLICE_M
+    low, high = TRUNK_SLICE_M
     in_slice = (height > low) & (height < high)
     in_slice &= horizontal_distance(points_m, near_m, up) < reach_m
     axis_u = np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 1.0, 0.0])
@@ -433,7 +437,7 @@ def _bark_circle(xy: np.ndarray) -> tuple[np.ndarray, float, int] | None:
 def _trunk_circles(xy: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """Circles of a trunk's size through three nearby points of the slice: the first at random, the other two
     within a trunk's diameter of it, so that all three lie on the trunk often even amid grass."""
-    reach = 2.0 * _TRUNK_RADIUS_RANGE_M[1]
+    reach = 2.0 * TRUNK_RADIUS_RANGE_M[1]
     firsts = rng.choice(xy.shape[0], size=min(_TRUNK_HYPOTHESES, xy.shape[0]), replace=False)
     nearby = cKDTree(xy).query_ball_point(xy[firsts], r=reach)
     triples = [
@@ -444,7 +448,7 @@ def _trunk_circles(xy: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray
     if not triples:
         return np.zeros((0, 2)), np.zeros(0)
     centres, radii = _circumcircles(xy[np.array(triples)])
-    plausible = np.isfinite(radii) & (radii > _TRUNK_RADIUS_RANGE_M[0]) & (radii < _TRUNK_RADIUS_RANGE_M[1])
+    plausible = np.isfinite(radii) & (radii > TRUNK_RADIUS_RANGE_M[0]) & (radii < TRUNK_RADIUS_RANGE_M[1])
     return centres[plausible], radii[plausible]
 
 

@@ -286,13 +286,16 @@ def measure(
         trunk_xy,
         config,
     )
-    trunk = follow_trunk(
-        np.concatenate([points[mask] for points, mask in zip(roi_points, tree_masks, strict=True)]),
+    modes, measured = _modes(
+        capture,
+        roi_points,
+        roi_colors,
+        tree_masks,
+        world_from_view,
         trunk_xy,
-        foot_radius_m=ground.trunk_radius_m,
-        config=config.metrics,
+        ground.trunk_radius_m,
+        config,
     )
-    modes, measured = _modes(capture, roi_points, roi_colors, tree_masks, world_from_view, trunk, config)
     for kinds, mask, view_measured in zip(
         point_classes,
         tree_masks,
@@ -380,16 +383,19 @@ def _modes(
     roi_colors: list[np.ndarray],
     tree_masks: list[np.ndarray],
     world_from_view: list[np.ndarray],
-    trunk: TrunkAxis,
+    trunk_xy: np.ndarray,
+    trunk_radius_m: float | None,
     config: MeasureConfig,
 ) -> tuple[dict[str, CanopyMetrics], np.ndarray]:
     """The metrics of each view's tree points alone, and of all views merged (the paper's V1, V2, V1+V2);
     and, over the views' tree points one after the other, the mask of those the merged metrics were read
     from (:func:`measured_points`).
 
-    The crown is told from ground vegetation, suckers, fallen fruit and mixed pixels once, on all views
-    together, where the gaps between them are seen best and each view's phantoms are seen through by the
-    others (``world_from_view``: each view's depth-camera pose in the world frame).
+    The trunk's axis is followed up from its foot (``trunk_xy``, ``trunk_radius_m``: the ground frame's
+    circle) on all views together (:func:`canopy_core.trunk_axis.follow_trunk`), and so is the crown told
+    from ground vegetation, suckers, fallen fruit and mixed pixels, where the gaps between them are seen
+    best and each view's phantoms are seen through by the others (``world_from_view``: each view's
+    depth-camera pose in the world frame).
     """
     points = [view_points[mask] for view_points, mask in zip(roi_points, tree_masks, strict=True)]
     foliage = [
@@ -401,6 +407,7 @@ def _modes(
         for view_points, pose, view in zip(points, world_from_view, capture.views, strict=True)
     ]
     merged, merged_foliage = np.concatenate(points), np.concatenate(foliage)
+    trunk = follow_trunk(merged, trunk_xy, foot_radius_m=trunk_radius_m, config=config.metrics)
     crown = crown_mask(
         merged,
         trunk,

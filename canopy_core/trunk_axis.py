@@ -9,11 +9,11 @@ leaves the bark's outline outside it at the crown's height, where its mixed pixe
 behind the trunk, pass for foliage and chain the crown base down the trunk (2099002: 0.27-0.53 m low).
 
 The axis is followed by geometry alone, slab by slab, from the foot circle up (:func:`follow_trunk`): in
-each slab the trunk is the circle most of the points near the previous one lie on, no wider than the one
-below (trunks taper) and no farther from it than the steepest lean allows. A slab where the points near the
-axis do not lie mostly on one such circle (a sucker or tall weeds beside the trunk, a branch fork) leaves
-the axis as it was found below and above it; where the crown's leaves hide the trunk for good, the axis
-ends, held above at its last circle.
+each slab the trunk is a circle about as wide as the one below (trunks taper by millimetres a slab) whose
+centre stands within the steepest lean's reach of it, with many points on it and few inside (a trunk is
+solid). A slab without such a circle (a sucker or tall weeds beside the trunk, a fork, leaves round it)
+leaves the axis as it was found below and above it; where the crown's leaves hide the trunk for good, the
+axis ends, held above at its last circle.
 """
 
 from __future__ import annotations
@@ -23,13 +23,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from canopy_core.config import MetricsConfig
-from canopy_core.ground import fit_circle
+from canopy_core.ground import TRUNK_RADIUS_RANGE_M, TRUNK_SLICE_M, fit_circle
 
 __all__ = ["TrunkAxis", "follow_trunk"]
 
-_MIN_RADIUS_M = 0.02
-"""No trunk measured by the crown's metrics is thinner than a whip's 2 cm radius (the ground frame's own
-lower bound for a trunk)."""
+_FOOT_HEIGHT_M = sum(TRUNK_SLICE_M) / 2
+"""The foot circle is the bark's in the ground frame's low slice: the axis's first point stands at its
+middle height, and below it the axis is held there."""
 _INSIDE_SHARE = 0.2
 """A slab shows the trunk when at most this many points per point on its circle lie inside it: a trunk is
 solid, only the depth noise puts a few of its bark's points inside; leaves round the trunk, a fork's two
@@ -39,9 +39,12 @@ _KEPT_SHARE = 0.5
 alike over a few decimetres, where a circle that happens to run through some leaves holds a few."""
 _REFINEMENTS = 3
 """Least-squares circle fits per slab, each on the points within the tolerance of the previous fit."""
+_COARSE_STEPS = 2
+"""The vote over centres runs first on a grid this many tolerances apart (a quarter of the centres to
+score where the reach is wide, after slabs without the trunk), then at one tolerance round the best."""
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class TrunkAxis:
     """The trunk's axis as the horizontal position (m, world frame) of its centre at a few heights,
     ascending, joined by straight lines and held beyond the first and the last (at least one height)."""
@@ -75,55 +78,55 @@ def follow_trunk(
     config: MetricsConfig,
 ) -> TrunkAxis:
     """The trunk's axis through the tree's ``(N, 3)`` points (world frame, z up from the ground at the
-    trunk's foot), followed up from the foot circle (centre ``foot_xy_m``, radius ``foot_radius_m``).
+    trunk's foot), followed up from the foot circle (centre ``foot_xy_m``, radius ``foot_radius_m``, found
+    in the ground frame's low slice, at whose middle height the axis starts).
 
-    Slab by slab (``config.trunk_slab_m`` high), the trunk's circle is sought among the points within
-    reach of the one found last: its centre within the steepest lean's shift (``config.trunk_max_lean_deg``
-    over the height climbed since) of the last centre (see :func:`_slab_circle`). It continues the axis
-    when at least ``config.trunk_min_points``, and half as many points as on the last, lie on it within
-    ``config.trunk_bark_tolerance_m``, few inside it (a trunk is solid), and it is no wider than the last
-    (trunks taper). Colour plays no part: bark that the camera's white balance turns green is still a
-    circle. The axis ends (held above at its last circle) where no slab has shown the trunk over
-    ``config.trunk_max_gap_m``: the crown hides it from there, and a circle found higher up is a branch or
-    the leader's tip.
+    Slab by slab (``config.trunk_slab_m`` high) above it, the trunk's circle is sought among the points
+    within reach of the one found last: its centre within the steepest lean's shift
+    (``config.trunk_max_lean_deg`` over the height climbed since) of the last centre (see
+    :func:`_slab_circle`). It continues the axis when at least ``config.trunk_min_points``, and half as
+    many points as on the last, lie on it within ``config.trunk_bark_tolerance_m``, few inside it (a trunk
+    is solid), and its radius is no more than that tolerance below the last one's nor above the narrowest
+    so far (trunks taper by millimetres a slab; a wider circle is a fork or a clump of leaves, even when it
+    widens a little a slab, and a much narrower one a sucker or a partial fit). Colour
+    plays no part: bark that the camera's white balance turns green is still a circle. The axis ends (held
+    above at its last circle) once more than ``config.trunk_max_gap_m`` of slabs in a row have not shown
+    the trunk: the crown hides it from there, and a circle found higher up is a branch or the leader's tip.
 
     Without a foot circle (``foot_radius_m`` None: grass and weeds hid the bark, the trunk was only the low
-    slice's median), the axis stands plumb above the foot.
+    slice's median), or with ``config.trunk_max_lean_deg`` 0, the axis stands plumb above the foot.
     """
     foot = np.asarray(foot_xy_m, dtype=float)
-    if foot_radius_m is None or points_m.shape[0] == 0:
+    if foot_radius_m is None or config.trunk_max_lean_deg == 0 or points_m.shape[0] == 0:
         return TrunkAxis.vertical(foot)
     slab_m, tolerance_m = config.trunk_slab_m, config.trunk_bark_tolerance_m
     lean_per_m = float(np.tan(np.radians(config.trunk_max_lean_deg)))
-    order = np.argsort(points_m[:, 2])
-    z_sorted = points_m[order, 2]
-    heights, centres = [0.0], [foot]
-    radius, min_points = float(foot_radius_m), config.trunk_min_points
-    for bottom in np.arange(slab_m, float(z_sorted[-1]), slab_m):
-        middle = bottom + slab_m / 2
-        if middle - heights[-1] > config.trunk_max_gap_m + slab_m / 2:
+    z_m = points_m[:, 2]
+    heights, centres = [_FOOT_HEIGHT_M], [foot]
+    radius, min_points, last_slab = float(foot_radius_m), config.trunk_min_points, 0
+    narrowest_m = radius
+    slabs = int(np.ceil((float(z_m.max()) - _FOOT_HEIGHT_M) / slab_m - 0.5))
+    for slab in range(1, slabs + 1):
+        if (slab - last_slab - 1) * slab_m > config.trunk_max_gap_m + 1e-9:
             break
-        allowed_m = lean_per_m * (middle - heights[-1])
-        first, last = np.searchsorted(z_sorted, [bottom, bottom + slab_m])
-        xy = points_m[order[first:last], :2]
+        middle = _FOOT_HEIGHT_M + slab * slab_m
+        allowed_m = lean_per_m * (slab - last_slab) * slab_m
+        xy = points_m[np.abs(z_m - middle) < slab_m / 2, :2]  # most axes end within a few slabs: no sort
         near = xy[np.linalg.norm(xy - centres[-1], axis=1) < radius + allowed_m + tolerance_m]
         circle = _slab_circle(
-            near,
-            centres[-1],
-            radius,
-            reach_m=allowed_m,
-            min_points=min_points,
-            tolerance_m=tolerance_m,
+            near, centres[-1], radius, reach_m=allowed_m, min_points=min_points, tolerance_m=tolerance_m
         )
         if circle is None:
             continue
         centre, slab_radius, on_circle = circle
-        if _MIN_RADIUS_M <= slab_radius <= radius + tolerance_m and (
-            np.linalg.norm(centre - centres[-1]) <= allowed_m
+        if (
+            max(radius - tolerance_m, TRUNK_RADIUS_RANGE_M[0]) <= slab_radius <= narrowest_m + tolerance_m
+            and np.linalg.norm(centre - centres[-1]) <= allowed_m
         ):
             heights.append(middle)
             centres.append(centre)
-            radius = slab_radius
+            radius, last_slab = slab_radius, slab
+            narrowest_m = min(narrowest_m, radius)
             min_points = max(config.trunk_min_points, int(_KEPT_SHARE * on_circle))
     return TrunkAxis(heights_m=np.array(heights), centres_xy_m=np.array(centres))
 
@@ -142,19 +145,15 @@ def _slab_circle(
     ``min_points`` lie on it, or more than a few inside it (``_INSIDE_SHARE``: a trunk is solid, a view
     sees only its surface).
 
-    Centres on a grid ``tolerance_m`` apart within reach are scored at the last radius (the trunk tapers by
-    millimetres a slab): the points on the circle less those inside it, as a solid trunk shows them.
-    Weeds or leaves beside the trunk, scattered, hold no circle's worth. The best is refined by least
-    squares on the points within the tolerance of it.
+    Centres on a grid within reach are scored at the last radius (the trunk tapers by millimetres a slab):
+    the points on the circle less those inside it, as a solid trunk shows them; weeds or leaves beside the
+    trunk, scattered, hold no circle's worth. The vote runs on a coarse grid first, with a band as wide as
+    its step, then at the tolerance round the best. The best is refined by least squares on the points
+    within the tolerance of it.
     """
-    steps = np.arange(-reach_m, reach_m + tolerance_m / 2, tolerance_m)
-    grid = centre + np.stack(np.meshgrid(steps, steps), axis=-1).reshape(-1, 2)
-    grid = grid[np.linalg.norm(grid - centre, axis=1) <= reach_m + tolerance_m / 2]
-    squared_m2 = (xy[None, :, 0] - grid[:, None, 0]) ** 2 + (xy[None, :, 1] - grid[:, None, 1]) ** 2
-    within = np.count_nonzero(squared_m2 < (radius + tolerance_m) ** 2, axis=1)
-    inside = np.count_nonzero(squared_m2 < max(radius - tolerance_m, 0.0) ** 2, axis=1)
-    scores = within - 2 * inside  # on the circle (within it, not inside) less inside
-    centre = grid[int(np.argmax(scores))]
+    coarse_m = _COARSE_STEPS * tolerance_m
+    centre = _best_centre(xy, centre, radius, reach_m=reach_m, step_m=coarse_m, band_m=coarse_m)
+    centre = _best_centre(xy, centre, radius, reach_m=coarse_m, step_m=tolerance_m, band_m=tolerance_m)
     for _ in range(_REFINEMENTS):
         on_circle = xy[np.abs(np.linalg.norm(xy - centre, axis=1) - radius) < tolerance_m]
         if on_circle.shape[0] < max(min_points, 3):
@@ -166,3 +165,20 @@ def _slab_circle(
     if on_circle_count < min_points or inside > _INSIDE_SHARE * on_circle_count:
         return None
     return centre, radius, on_circle_count
+
+
+def _best_centre(
+    xy: np.ndarray, centre: np.ndarray, radius: float, *, reach_m: float, step_m: float, band_m: float
+) -> np.ndarray:
+    """Of the centres on a grid ``step_m`` apart within ``reach_m`` of ``centre`` (``centre`` itself among
+    them), the one whose circle of ``radius`` has the most of the ``(N, 2)`` points within ``band_m`` of it
+    less those inside that band."""
+    count = int(np.ceil(reach_m / step_m - 1e-9))
+    steps = step_m * np.arange(-count, count + 1)
+    grid = centre + np.stack(np.meshgrid(steps, steps), axis=-1).reshape(-1, 2)
+    grid = grid[np.linalg.norm(grid - centre, axis=1) <= reach_m + step_m / 2]
+    squared_m2 = (xy[None, :, 0] - grid[:, None, 0]) ** 2 + (xy[None, :, 1] - grid[:, None, 1]) ** 2
+    within = np.count_nonzero(squared_m2 < (radius + band_m) ** 2, axis=1)
+    inside = np.count_nonzero(squared_m2 < max(radius - band_m, 0.0) ** 2, axis=1)
+    scores = within - 2 * inside  # on the circle (within it, not inside) less inside
+    return grid[int(np.argmax(scores))]

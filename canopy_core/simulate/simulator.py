@@ -45,8 +45,9 @@ _FIRST_DAY = datetime(2026, 9, 1, 7, 0, tzinfo=UTC)
 _STEEPEST_SLOPE_DEG = 30.0
 """Steeper than this, orchards stand on terraces (each level again): no slope the simulator draws."""
 _STEEPEST_LEAN_DEG = 45.0
-"""Trellis systems that slant their trees (Tatura, V-trellis) plant them at up to 30 degrees from vertical;
-a tree leaning further has fallen."""
+"""The simulator leans a tree by less than this: trellis systems that slant their trees (Tatura,
+V-trellis) plant them at up to 30 degrees from vertical, and a free-standing tree pushed over further is
+lost."""
 
 
 def _captured_at(rng: np.random.Generator) -> str:
