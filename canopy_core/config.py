@@ -495,10 +495,11 @@ class MetricsConfig(_Section):
     trunk_bark_tolerance_m: float = Field(
         0.015,
         gt=0.0,
-        description="A point lies on a slab's bark circle within this distance of it, and a slab's circle is "
-        "as wide as the last one's within it: the depth noise at a few metres, the bark's roughness, and the "
-        "views' registration, whose small turn shifts them apart with the height (the foot's own circle, "
-        "at the height the views are refined on, takes 1 cm).",
+        description="A point lies on a slab's bark circle within this distance of it, and a slab's circle "
+        "is at most this much narrower than the last one's and wider than the narrowest so far: the depth "
+        "noise at a few metres, the bark's roughness, and the views' registration, whose small turn shifts "
+        "them apart with the height (the foot's own circle, at the height the views are refined on, takes "
+        "1 cm).",
     )
     trunk_min_points: int = Field(
         20,

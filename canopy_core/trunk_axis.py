@@ -81,22 +81,25 @@ def follow_trunk(
     trunk's foot), followed up from the foot circle (centre ``foot_xy_m``, radius ``foot_radius_m``, found
     in the ground frame's low slice, at whose middle height the axis starts).
 
-    Slab by slab (``config.trunk_slab_m`` high) above it, the trunk's circle is sought among the points
-    within reach of the one found last: its centre within the steepest lean's shift
-    (``config.trunk_max_lean_deg`` over the height climbed since) of the last centre (see
-    :func:`_slab_circle`). It continues the axis when at least ``config.trunk_min_points``, and half as
-    many points as on the last, lie on it within ``config.trunk_bark_tolerance_m``, few inside it (a trunk
-    is solid), and its radius is no more than that tolerance below the last one's nor above the narrowest
-    so far (trunks taper by millimetres a slab; a wider circle is a fork or a clump of leaves, even when it
-    widens a little a slab, and a much narrower one a sucker or a partial fit). Colour
-    plays no part: bark that the camera's white balance turns green is still a circle. The axis ends (held
-    above at its last circle) once more than ``config.trunk_max_gap_m`` of slabs in a row have not shown
-    the trunk: the crown hides it from there, and a circle found higher up is a branch or the leader's tip.
+    Slab by slab (``config.trunk_slab_m`` high) above it, the trunk's circle is sought among the points within
+    reach of the one found last: its centre within the steepest lean's shift (``config.trunk_max_lean_deg``
+    over the height climbed since) of the last centre (see :func:`_slab_circle`). It continues the axis when
+    at least ``config.trunk_min_points``, and half as many points as on the last, lie on it within
+    ``config.trunk_bark_tolerance_m``, few inside it (a trunk is solid), and its radius is at most that
+    tolerance below the last one's and above the narrowest so far, and no less than a whip's (2 cm). Trunks
+    taper by millimetres a slab: a wider circle is a fork or a clump of leaves, even when it widens a little a
+    slab; a much narrower one a sucker or a fit on a sliver of arc, though a circle may still narrow by the
+    tolerance a slab. Colour plays no part: bark that the camera's white balance turns green is still a
+    circle. The axis ends (held above at its last circle) once more than ``config.trunk_max_gap_m`` of slabs
+    in a row have not shown the trunk: the crown hides it from there, and a circle found higher up is a branch
+    or the leader's tip.
 
     Without a foot circle (``foot_radius_m`` None: grass and weeds hid the bark, the trunk was only the low
-    slice's median), or with ``config.trunk_max_lean_deg`` 0, the axis stands plumb above the foot.
+    slice's median), or with ``config.trunk_max_lean_deg`` 0, the axis stands plumb above the foot. Points
+    with a coordinate not finite are left out.
     """
     foot = np.asarray(foot_xy_m, dtype=float)
+    points_m = points_m[np.isfinite(points_m).all(axis=1)]
     if foot_radius_m is None or config.trunk_max_lean_deg == 0 or points_m.shape[0] == 0:
         return TrunkAxis.vertical(foot)
     slab_m, tolerance_m = config.trunk_slab_m, config.trunk_bark_tolerance_m
@@ -171,8 +174,8 @@ def _best_centre(
     xy: np.ndarray, centre: np.ndarray, radius: float, *, reach_m: float, step_m: float, band_m: float
 ) -> np.ndarray:
     """Of the centres on a grid ``step_m`` apart within ``reach_m`` of ``centre`` (``centre`` itself among
-    them), the one whose circle of ``radius`` has the most of the ``(N, 2)`` points within ``band_m`` of it
-    less those inside that band."""
+    them; the grid's edge may stand half a step farther), the one whose circle of ``radius`` has the most of
+    the ``(N, 2)`` points within ``band_m`` of it less those inside that band."""
     count = int(np.ceil(reach_m / step_m - 1e-9))
     steps = step_m * np.arange(-count, count + 1)
     grid = centre + np.stack(np.meshgrid(steps, steps), axis=-1).reshape(-1, 2)
