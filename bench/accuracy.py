@@ -17,6 +17,7 @@ tape and pole, a different kind of number.
     .venv/bin/python bench/accuracy.py --scenario mixed --slope-deg 6  # a hillside orchard
     .venv/bin/python bench/accuracy.py --scenario mixed --lean-deg 8  # trees leaning from their foot
     .venv/bin/python bench/accuracy.py --scenario mixed --stake  # a support stake beside every trunk
+    .venv/bin/python bench/accuracy.py --scenario mixed --pitch-deg 0  # cameras held level: trees cut off
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ import tempfile
 from collections import Counter
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -43,19 +45,12 @@ WRONG_SPHERE_M = 0.05
 """A ball chosen this far from the true ball's centre (in its view) is another sphere taken for it."""
 
 
-def _measure_one(args: tuple[Path, int, int, str, str, float | None, float | None, bool]) -> dict:
-    folder, seed, views, scenario, sensor, slope_deg, lean_deg, stake = args
+def _measure_one(args: tuple[Path, int, str, dict[str, Any]]) -> dict:
+    """Simulate and measure one tree; ``args`` are its folder, seed, scenario and the simulator's other
+    options (``simulate_capture``'s keywords)."""
+    folder, seed, scenario, simulated = args
     try:
-        capture = simulate_capture(
-            folder,
-            seed=seed,
-            n_views=views,
-            scenario=scenario,
-            sensor=sensor,
-            slope_deg=slope_deg,
-            lean_deg=lean_deg,
-            stake=stake,
-        )
+        capture = simulate_capture(folder, seed=seed, scenario=scenario, **simulated)
     except NoLayout as exc:  # the simulator's, not the measurement's: that seed has no capture
         return {"seed": seed, "unsimulated": str(exc)}
     truth = json.loads((capture / "ground_truth.json").read_text())
@@ -63,7 +58,7 @@ def _measure_one(args: tuple[Path, int, int, str, str, float | None, float | Non
         result = measure(capture)
     except CanopyError as exc:
         where = getattr(exc, "color", None) or exc.view or "capture"
-        return {"seed": seed, "error": str(exc), "reason": f"{exc.code} ({where})"}
+        return {"seed": seed, "truth": truth, "error": str(exc), "reason": f"{exc.code} ({where})"}
     modes = {name: metrics.to_dict() for name, metrics in result.modes.items()}
     return {"seed": seed, "truth": truth, "modes": modes, "ball_errors_m": _ball_errors(result, truth)}
 
@@ -114,6 +109,13 @@ def _report(scenario: str, results: list[dict], options: argparse.Namespace) -> 
     )
     for r in unsimulated:
         print(f"  not simulated (left out of every figure): {r['unsimulated']}")
+    unframed = [r for r in simulated if not any(view["tree_framed"] for view in r["truth"]["views"].values())]
+    if unframed:
+        refused = [r for r in unframed if "error" in r]
+        print(
+            f"  no view frames the whole tree: {len(unframed)}; of them {len(unframed) - len(refused)} "
+            f"measured ({sum(r in wrong for r in unframed)} confidently wrong), {len(refused)} failed"
+        )
     for reason, count in Counter(r["reason"] for r in failed).most_common():
         print(f"  failed {count}x: {reason}")
     for r in failed if options.details else []:
@@ -134,11 +136,17 @@ def _report(scenario: str, results: list[dict], options: argparse.Namespace) -> 
     print(f"  {'mode':<10}{'metric':<8}{'R²':>8}{'RMSE cm':>10}{'ARE %':>8}{'paper ARE %':>13}")
     for mode in mode_names:
         for short, key in METRICS:
-            predicted = np.array([r["modes"][mode][key] for r in done])
-            actual = np.array([r["truth"][key] for r in done])
+            framed = [r for r in done if key not in r["modes"][mode]["cut_by_frame"]]
+            if not framed:
+                continue
+            predicted = np.array([r["modes"][mode][key] for r in framed])
+            actual = np.array([r["truth"][key] for r in framed])
             r2, rmse_cm, are_pct = _table_row(predicted, actual)
             paper = f"{PAPER_MERGED_ARE[short]:.1f}" if mode == "merged" else ""
-            print(f"  {mode:<10}{short:<8}{r2:>8.3f}{rmse_cm:>10.2f}{are_pct:>8.2f}{paper:>13}")
+            cut = (
+                f"  ({len(done) - len(framed)} cut by its frame left out)" if len(framed) < len(done) else ""
+            )
+            print(f"  {mode:<10}{short:<8}{r2:>8.3f}{rmse_cm:>10.2f}{are_pct:>8.2f}{paper:>13}{cut}")
     if options.details:
         print(f"  {'seed':>12}" + "".join(f"{short + ' err cm':>12}" for short, _ in METRICS))
         for r in done:
@@ -170,6 +178,12 @@ def main() -> None:
         action="store_true",
         help="A support stake beside every trunk (its top may be above the crown).",
     )
+    parser.add_argument(
+        "--pitch-deg",
+        type=float,
+        help="Every camera is held this many degrees up from level, framing the tree or not (default: "
+        "aimed to frame it); the trees no view frames whole are counted apart.",
+    )
     parser.add_argument("--details", action="store_true", help="Print every tree's errors and failures.")
     options = parser.parse_args()
     scenarios = [s.value for s in Scenario] if options.scenario == "all" else [options.scenario]
@@ -182,21 +196,21 @@ def main() -> None:
         )
         + ("" if options.lean_deg is None else f", trees leaning {options.lean_deg:g} degrees")
         + (", a stake beside every trunk" if options.stake else "")
+        + ("" if options.pitch_deg is None else f", cameras held {options.pitch_deg:g} degrees up")
         + f", seeds {options.seed * 1000} to {options.seed * 1000 + options.count - 1}"
     )
     for scenario in scenarios:
         with tempfile.TemporaryDirectory(prefix="canopy-bench-") as scratch:
+            simulated = {
+                "n_views": options.views,
+                "sensor": options.sensor,
+                "slope_deg": options.slope_deg,
+                "lean_deg": options.lean_deg,
+                "stake": options.stake,
+                "pitch_deg": options.pitch_deg,
+            }
             work = [
-                (
-                    Path(scratch) / f"tree_{i:03d}",
-                    options.seed * 1000 + i,
-                    options.views,
-                    scenario,
-                    options.sensor,
-                    options.slope_deg,
-                    options.lean_deg,
-                    options.stake,
-                )
+                (Path(scratch) / f"tree_{i:03d}", options.seed * 1000 + i, scenario, simulated)
                 for i in range(options.count)
             ]
             with ProcessPoolExecutor(max_workers=options.jobs) as pool:

@@ -188,6 +188,14 @@ def simulate(
             "the crown's), as young tall-spindle trees have."
         ),
     ] = False,
+    pitch_deg: Annotated[
+        float | None,
+        typer.Option(
+            help="Hold every camera this many degrees up from level (negative: down), as a crew that does "
+            "not aim it at the tree: the tree may run out of the image, the balls never do. Default: each "
+            "camera is aimed to frame the whole tree."
+        ),
+    ] = None,
 ) -> None:
     """Write synthetic captures of procedural apple trees, each with its ground_truth.json."""
     require_extra("sim", "simulate")
@@ -212,6 +220,7 @@ def simulate(
             slope_deg=slope_deg,
             lean_deg=lean_deg,
             stake=stake,
+            pitch_deg=pitch_deg,
         )
     except (FileExistsError, ValueError) as exc:
         typer.echo(f"error: {exc}", err=True)

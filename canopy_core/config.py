@@ -507,6 +507,23 @@ class MetricsConfig(_Section):
         description="A slab's bark circle needs at least this many points on it (a trunk seen by one view "
         "over 10 cm shows hundreds).",
     )
+    frame_margin_px: float = Field(
+        3.0,
+        gt=0.0,
+        le=20.0,
+        description="A tree point within this many pixels of an edge of its view's depth image is where the "
+        "tree may run out of that image; another view looked beyond it if the point moved this many of the "
+        "first view's pixel pitches out through that edge falls in the other's image. Where none did, the "
+        "merged measurement is refused (a view's own metrics are marked cut_by_frame). 3 px: the half pixel "
+        "by which the last point sampled lies inside an outline, and the pixel or two by which the flying-"
+        "pixel window and the registration move or drop it.",
+    )
+    frame_min_points: int = Field(
+        5,
+        ge=1,
+        description="Fewer tree points than this at an image's edge are specks (flying pixels), not a tree "
+        "cut by the frame: more than the top's support (top_support_points + 1).",
+    )
     crown_piece_min_voxels: int = Field(
         5,
         ge=1,

@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -28,6 +28,7 @@ from canopy_core.config import FilterConfig, MeasureConfig
 from canopy_core.errors import CaptureError, ConfigError, MeasurementError, RegistrationFailed
 from canopy_core.filters import reliable_depth_mask
 from canopy_core.foliage import foliage_mask
+from canopy_core.framing import FrameCut, ViewFrame, cut_metrics, frame_cuts
 from canopy_core.ground import (
     CAMERA_UP,
     GroundFrame,
@@ -69,6 +70,7 @@ STAGES = ("load", "filter", "balls", "register", "refine", "metrics", "done")
 
 MERGED = "merged"
 _GROUND_SAMPLE = 60_000
+_HEADLINE_METRICS = ("height_m", "width_m", "thickness_m", "crown_base_m")
 _TREE_CLEARANCE_M = 0.12
 """Tree points start this high above the ground: below it are the ground, grass and the balls."""
 
@@ -430,13 +432,29 @@ def _modes(
             ]
         ),
     )
-    crowns = np.split(crown, np.cumsum([view_points.shape[0] for view_points in points])[:-1])
+    offsets = np.cumsum([view_points.shape[0] for view_points in points])[:-1]
+    crowns = np.split(crown, offsets)
+    measured = measured_points(merged, trunk, crown=crown, foliage=merged_foliage, config=config.metrics)
+    kept = [view_points[mask] for view_points, mask in zip(points, np.split(measured, offsets), strict=True)]
+    kept_crown = [
+        view_points[mask]
+        for view_points, mask in zip(points, np.split(measured & crown, offsets), strict=True)
+    ]
+    frames = [
+        ViewFrame(view.name, view.camera.depth, pose, max_depth_m=config.filters.max_depth_m)
+        for view, pose in zip(capture.views, world_from_view, strict=True)
+    ]
+    _refuse_cut_off(_frame_cuts(kept, kept_crown, frames, config), np.concatenate(kept), config)
     modes: dict[str, CanopyMetrics] = {}
-    for view, view_points, leafy, view_crown, footprint in zip(
-        capture.views, points, foliage, crowns, footprints, strict=True
+    for index, (view, view_points, leafy, view_crown, footprint) in enumerate(
+        zip(capture.views, points, foliage, crowns, footprints, strict=True)
     ):
-        modes[view.name] = _metrics_or_fail(
-            view_points, leafy, view_crown, footprint, trunk, config, view=view.name, single_view=True
+        cuts = _frame_cuts([kept[index]], [kept_crown[index]], [frames[index]], config)
+        modes[view.name] = replace(
+            _metrics_or_fail(
+                view_points, leafy, view_crown, footprint, trunk, config, view=view.name, single_view=True
+            ),
+            cut_by_frame=cut_metrics(cuts),
         )
     modes[MERGED] = _metrics_or_fail(
         merged,
@@ -448,8 +466,45 @@ def _modes(
         view=None,
         single_view=len(capture.views) == 1,
     )
-    measured = measured_points(merged, trunk, crown=crown, foliage=merged_foliage, config=config.metrics)
     return modes, measured
+
+
+def _frame_cuts(
+    kept: list[np.ndarray], kept_crown: list[np.ndarray], frames: list[ViewFrame], config: MeasureConfig
+) -> tuple[FrameCut, ...]:
+    """:func:`frame_cuts` of the views' measured points (``kept``), the bottom edge judged on their crown."""
+    return frame_cuts(
+        kept,
+        frames,
+        margin_px=config.metrics.frame_margin_px,
+        min_points=config.metrics.frame_min_points,
+        bottom_points_by_view=kept_crown,
+    )
+
+
+def _refuse_cut_off(cuts: tuple[FrameCut, ...], kept: np.ndarray, config: MeasureConfig) -> None:
+    """Raise a MeasurementError if the merged tree (``kept``: the points its metrics are read from) may go
+    on where nothing was measured: out of every view's image (``cuts``), or above the region of interest,
+    whose top the points reach within ``metrics.support_radius_m`` (at least ``metrics.frame_min_points``
+    of them)."""
+    if cuts:
+        affected = [name for name in cut_metrics(cuts) if name in _HEADLINE_METRICS]
+        raise MeasurementError(
+            f"the tree runs out of the depth image at {', '.join(cut.describe() for cut in cuts)}, and no "
+            "other view looks beyond: it may go on out of every view, and "
+            f"{', '.join(affected)} would be read where the frame cut it",
+            view=cuts[0].view if len({cut.view for cut in cuts}) == 1 else None,
+            hint="measure it again with the whole tree, and some sky above its top, inside at least one "
+            "view's image (step back, or tilt the camera)",
+        )
+    ceiling = config.roi.max_height_m - config.metrics.support_radius_m
+    if np.count_nonzero(kept[:, 2] >= ceiling) >= config.metrics.frame_min_points:
+        raise MeasurementError(
+            f"the tree reaches the region of interest's top, {config.roi.max_height_m:g} m above the ground: "
+            "it may go on above, so height_m and thickness_m would read short",
+            field="roi.max_height_m",
+            hint="raise roi.max_height_m above the tree's height",
+        )
 
 
 def _ball_residual(pose: np.ndarray, centres: np.ndarray, reference: np.ndarray) -> float:

@@ -81,7 +81,9 @@ class CrownMarks:
 @dataclass(frozen=True)
 class CanopyMetrics:
     """The metrics of one tree cloud (one view, or the merged views). Lengths in m, areas m², volumes m³;
-    ``marks`` says where the extremes were read."""
+    ``marks`` says where the extremes were read; ``cut_by_frame`` names the metrics that may read wrong
+    (short; the crown base high) because the tree runs out of the view's image (:mod:`canopy_core.framing`;
+    a single view's metrics only: the merged ones are refused instead)."""
 
     height_m: float
     width_m: float
@@ -96,6 +98,7 @@ class CanopyMetrics:
     volume_voxel_m3: float
     points: int
     marks: CrownMarks
+    cut_by_frame: tuple[str, ...] = ()
 
     def to_dict(self) -> dict[str, Any]:
         """The metrics as a JSON-ready dict with unit-suffixed keys, ``marks`` nested."""

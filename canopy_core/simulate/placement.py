@@ -2,7 +2,9 @@
 
 The balls are laid on the ground 0.35-0.8 m from the trunk; each camera stands 2.6-4.0 m from the trunk,
 0.8-1.6 m above the ground, looks at the trunk (a few degrees of yaw and roll jitter) and is pitched so
-that the whole main tree lies inside the depth image and the balls inside both images. A layout is kept
+that the whole main tree lies inside the depth image and the balls inside both images (or, for a crew
+that does not aim at the tree, held at a given pitch that shows the balls, the tree as it falls: the
+tree may run out of the image). A layout is kept
 only if every ball keeps to the crew's rule in every depth image, with everything else of the scene in place
 (weeds and wires in the mesh, apples in the crown, and the objects laid beside the balls, such as fallen
 apples): at least :data:`MIN_BALL_PIXELS` of its pixels, and at least :data:`MIN_CLEAN_SHARE` of its disc
@@ -76,6 +78,9 @@ class Layout:
     poses: tuple[CameraPose, ...]
     ball_pixels: tuple[tuple[int, ...], ...]
     ball_clean_shares: tuple[tuple[float, ...], ...]
+    tree_framed: tuple[bool, ...]
+    """Per view, whether the whole main tree falls inside its depth image, 4 px from its edges (always,
+    unless the cameras are held at a given pitch)."""
     beside_balls: tuple[Sphere, ...] = ()
 
 
@@ -144,8 +149,11 @@ def _framed_pose(
     ball_points: np.ndarray,
     *,
     native_color: bool,
+    pitch_rad: float | None,
 ) -> CameraPose | None:
-    """A camera pose on ``azimuth`` that frames the tree and the balls, or None if none was found."""
+    """A camera pose on ``azimuth`` that frames the tree and the balls, or None if none was found; with
+    ``pitch_rad``, a pose at that pitch (and the usual jitter) that frames the balls, the tree as it
+    falls."""
     for _ in range(_POSE_ATTEMPTS):
         distance = rng.uniform(*_CAMERA_DISTANCE_M)
         x, y = distance * np.cos(azimuth), distance * np.sin(azimuth)
@@ -155,22 +163,27 @@ def _framed_pose(
         ball_elevations = _elevations(ball_points, position, yaw)
         if tree_elevations is None or ball_elevations is None:
             continue
-        ranges = [_pitch_range(tree_elevations, rig.depth), _pitch_range(ball_elevations, rig.depth)]
+        ranges = [_pitch_range(ball_elevations, rig.depth)]
+        if pitch_rad is None:
+            ranges.append(_pitch_range(tree_elevations, rig.depth))
         if native_color:
             ranges.append(_pitch_range(ball_elevations, rig.color))
         lowest, highest = max(r[0] for r in ranges), min(r[1] for r in ranges)
         if lowest > highest:
             continue
-        centred = (tree_elevations.min() + tree_elevations.max()) / 2 + rng.uniform(
-            -_PITCH_JITTER_RAD, _PITCH_JITTER_RAD
-        )
+        aim = (tree_elevations.min() + tree_elevations.max()) / 2 if pitch_rad is None else pitch_rad
+        pitch = aim + rng.uniform(-_PITCH_JITTER_RAD, _PITCH_JITTER_RAD)
+        if pitch_rad is not None and not lowest <= pitch <= highest:
+            continue
         pose = camera_pose(
             position,
             yaw_rad=yaw,
-            pitch_rad=float(np.clip(centred, lowest, highest)),
+            pitch_rad=float(np.clip(pitch, lowest, highest)),
             roll_rad=rng.uniform(-_ROLL_JITTER_RAD, _ROLL_JITTER_RAD),
         )
-        framed = _inside(pose, rig.depth, tree_points) and _inside(pose, rig.depth, ball_points)
+        framed = _inside(pose, rig.depth, ball_points) and (
+            pitch_rad is not None or _inside(pose, rig.depth, tree_points)
+        )
         if framed and (
             not native_color or _inside(pose.moved_by(rig.depth_to_color), rig.color, ball_points)
         ):
@@ -225,8 +238,11 @@ def place_balls_and_cameras(
     n_views: int,
     native_color: bool,
     beside_balls: Callable[[tuple[Sphere, ...]], tuple[Sphere, ...]] | None = None,
+    pitch_deg: float | None = None,
 ) -> Layout:
-    """Draw balls and camera poses until every view frames the tree and sees every ball.
+    """Draw balls and camera poses until every view frames the tree and sees every ball; with
+    ``pitch_deg``, until every view held at that pitch (degrees up from level) sees every ball, the tree
+    framed or not (a crew that does not aim the camera at the tree).
 
     Parameters
     ----------
@@ -241,6 +257,8 @@ def place_balls_and_cameras(
     beside_balls
         Given the balls just drawn, the spheres to lay beside them (fallen apples); they are in the scene
         when the balls' visibility is checked. None: nothing.
+    pitch_deg
+        Every camera's pitch, up from level, within 1 degree; None: each camera is aimed to frame the tree.
 
     Raises
     ------
@@ -255,7 +273,14 @@ def place_balls_and_cameras(
         poses: list[CameraPose] = []
         for azimuth in view_azimuths(rng, n_views):
             pose = _framed_pose(
-                rng, orchard, rig, azimuth, tree_points, ball_points, native_color=native_color
+                rng,
+                orchard,
+                rig,
+                azimuth,
+                tree_points,
+                ball_points,
+                native_color=native_color,
+                pitch_rad=None if pitch_deg is None else float(np.radians(pitch_deg)),
             )
             if pose is None:
                 break
@@ -274,6 +299,7 @@ def place_balls_and_cameras(
                 ball_pixels=counts,
                 ball_clean_shares=shares,
                 beside_balls=beside,
+                tree_framed=tuple(_inside(pose, rig.depth, tree_points) for pose in poses),
             )
     raise NoLayout(
         f"no layout in {_LAYOUT_ATTEMPTS} attempts frames the tree and shows every ball to every view"

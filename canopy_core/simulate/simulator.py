@@ -48,6 +48,9 @@ _STEEPEST_LEAN_DEG = 45.0
 """The simulator leans a tree by less than this: trellis systems that slant their trees (Tatura,
 V-trellis) plant them at up to 30 degrees from vertical, and a free-standing tree pushed over further is
 lost."""
+_STEEPEST_PITCH_DEG = 30.0
+"""A camera held more than this up or down from level shows no ball on the ground or no tree: half a
+Kinect v2's vertical field of view."""
 
 
 def _captured_at(rng: np.random.Generator) -> str:
@@ -68,6 +71,7 @@ def _simulate(
     slope_deg: float | None,
     lean_deg: float | None,
     stake: bool,
+    pitch_deg: float | None,
 ) -> Path:
     check_empty(out_dir)
     # The first six streams are the plain scene's, as they always were; the seventh is the scenario's, the
@@ -116,6 +120,7 @@ def _simulate(
             n_views=n_views,
             native_color=native_color,
             beside_balls=partial(fallen_fruit_beside, dressing, scenario_streams) if plan.fruit else None,
+            pitch_deg=pitch_deg,
         )
     except NoLayout as exc:
         raise NoLayout(f"seed {seed}, {n_views} views: {exc}") from exc
@@ -148,9 +153,18 @@ def _simulate(
             ball_pixels=ball_pixels,
             ball_clean_shares=clean_shares,
             response=response,
+            tree_framed=framed,
         )
-        for number, (pose, ball_pixels, clean_shares, response) in enumerate(
-            zip(layout.poses, layout.ball_pixels, layout.ball_clean_shares, responses, strict=True), start=1
+        for number, (pose, ball_pixels, clean_shares, response, framed) in enumerate(
+            zip(
+                layout.poses,
+                layout.ball_pixels,
+                layout.ball_clean_shares,
+                responses,
+                layout.tree_framed,
+                strict=True,
+            ),
+            start=1,
         )
     ]
     return write_capture(
@@ -177,7 +191,12 @@ def _simulate(
 
 
 def _checked(
-    n_views: int, sun: float | None, scenario: Scenario | str, slope_deg: float | None, lean_deg: float | None
+    n_views: int,
+    sun: float | None,
+    scenario: Scenario | str,
+    slope_deg: float | None,
+    lean_deg: float | None,
+    pitch_deg: float | None,
 ) -> Scenario:
     """The scenario named ``scenario``, after checking the options (ValueError if one is wrong)."""
     if n_views < 1:
@@ -188,6 +207,10 @@ def _checked(
         raise ValueError(f"slope_deg must be in [0, {_STEEPEST_SLOPE_DEG:g}), got {slope_deg}")
     if lean_deg is not None and not 0.0 <= lean_deg < _STEEPEST_LEAN_DEG:
         raise ValueError(f"lean_deg must be in [0, {_STEEPEST_LEAN_DEG:g}), got {lean_deg}")
+    if pitch_deg is not None and not -_STEEPEST_PITCH_DEG <= pitch_deg <= _STEEPEST_PITCH_DEG:
+        raise ValueError(
+            f"pitch_deg must be in [-{_STEEPEST_PITCH_DEG:g}, {_STEEPEST_PITCH_DEG:g}], got {pitch_deg}"
+        )
     return parse_scenario(scenario)
 
 
@@ -203,6 +226,7 @@ def simulate_capture(
     slope_deg: float | None = None,
     lean_deg: float | None = None,
     stake: bool = False,
+    pitch_deg: float | None = None,
 ) -> Path:
     """Write one synthetic RGB-D capture of a simulated apple tree, with its ``ground_truth.json``.
 
@@ -239,6 +263,10 @@ def simulate_capture(
     stake
         Stand a support stake beside the trunk (see :mod:`.stake`): a thin pole through the crown whose top
         may stand above it, which is not the tree's.
+    pitch_deg
+        Hold every camera this many degrees up from level (within 1 degree; negative: down), as a crew that
+        does not aim it at the tree: the tree may run out of the image (the balls never do). None: each
+        camera is aimed to frame the whole tree, as every family's default.
 
     Returns
     -------
@@ -249,13 +277,13 @@ def simulate_capture(
     ------
     ValueError
         If ``n_views`` < 1, ``sun`` is outside [0, 1], ``slope_deg`` outside [0, 30), ``lean_deg`` outside
-        [0, 45), or ``scenario`` or ``sensor`` names no such thing.
+        [0, 45), ``pitch_deg`` outside [-30, 30], or ``scenario`` or ``sensor`` names no such thing.
     FileExistsError
         If ``out_dir`` already holds files.
     NoLayout
         If no placement of the balls and cameras shows every ball to every view (nothing is written).
     """
-    family = _checked(n_views, sun, scenario, slope_deg, lean_deg)
+    family = _checked(n_views, sun, scenario, slope_deg, lean_deg, pitch_deg)
     return _simulate(
         Path(out_dir),
         seed=seed,
@@ -268,6 +296,7 @@ def simulate_capture(
         slope_deg=slope_deg,
         lean_deg=lean_deg,
         stake=stake,
+        pitch_deg=pitch_deg,
     )
 
 
@@ -282,6 +311,7 @@ def simulate_captures(
     slope_deg: float | None = None,
     lean_deg: float | None = None,
     stake: bool = False,
+    pitch_deg: float | None = None,
 ) -> list[Path]:
     """Write ``count`` synthetic captures ``out/tree_000``, ``out/tree_001``, ... of different trees.
 
@@ -310,6 +340,8 @@ def simulate_captures(
         Every tree's lean from its foot (see :func:`simulate_capture`); None: upright.
     stake
         Stand a support stake beside every tree's trunk (see :func:`simulate_capture`).
+    pitch_deg
+        Every camera's pitch (see :func:`simulate_capture`); None: aimed to frame the tree.
 
     Returns
     -------
@@ -319,14 +351,14 @@ def simulate_captures(
     Raises
     ------
     ValueError
-        If ``count`` < 0, ``n_views`` < 1, ``slope_deg`` outside [0, 30), ``lean_deg`` outside [0, 45), or
-        ``scenario`` or ``sensor`` names no such thing.
+        If ``count`` < 0, ``n_views`` < 1, ``slope_deg`` outside [0, 30), ``lean_deg`` outside [0, 45),
+        ``pitch_deg`` outside [-30, 30], or ``scenario`` or ``sensor`` names no such thing.
     NoLayout
         If one seed's balls and cameras cannot be placed (the captures before it are written).
     """
     if count < 0:
         raise ValueError(f"count must not be negative, got {count}")
-    family = _checked(n_views, None, scenario, slope_deg, lean_deg)
+    family = _checked(n_views, None, scenario, slope_deg, lean_deg, pitch_deg)
     model = parse_sensor(sensor)
     seeds = [int(child.generate_state(1)[0]) for child in np.random.SeedSequence(seed).spawn(count)]
     written: list[Path] = []
@@ -346,6 +378,7 @@ def simulate_captures(
                     slope_deg=slope_deg,
                     lean_deg=lean_deg,
                     stake=stake,
+                    pitch_deg=pitch_deg,
                 )
             )
         except NoLayout as exc:

@@ -50,8 +50,8 @@ class CaptureLabels:
 @dataclass(frozen=True, eq=False)
 class SimulatedView:
     """One rendered view: its name (``views/1``), images, calibration, depth-camera-to-world pose, each
-    ball's pixels and share of its disc seen clean (see :mod:`.placement`) and colour camera response (None:
-    neutral)."""
+    ball's pixels and share of its disc seen clean (see :mod:`.placement`), colour camera response (None:
+    neutral) and whether its depth image frames the whole tree."""
 
     name: str
     frame: SensorFrame
@@ -59,6 +59,9 @@ class SimulatedView:
     camera_to_world: np.ndarray
     ball_pixels: tuple[int, ...]
     ball_clean_shares: tuple[float, ...]
+    tree_framed: bool
+    """The whole main tree (every vertex of its hull) falls inside the depth image, 4 px from its edges, as
+    a camera aimed at the tree frames it."""
     response: CameraResponse | None = None
 
 
@@ -156,6 +159,7 @@ def _ground_truth_json(truth: GroundTruth, views: Sequence[SimulatedView]) -> di
                     color: round(share, 3)
                     for color, share in zip(BALL_COLORS, view.ball_clean_shares, strict=True)
                 },
+                "tree_framed": view.tree_framed,
             }
             for view in views
         },

@@ -48,3 +48,16 @@ def paint_blue_grey(capture: Path, view: str) -> None:
     hsv = cv2.cvtColor(rgb, cv2.COLOR_RGB2HSV)
     rgb[(hsv[..., 0] > 95) & (hsv[..., 0] < 135) & (hsv[..., 1] > 80)] = (120, 110, 100)
     Image.fromarray(rgb).save(color_file)
+
+
+def crop_depth_top(capture: Path, view: str, rows: int) -> None:
+    """Cut the top ``rows`` rows off a view's depth image, as a camera with a narrower field of view
+    above would take it: the depth intrinsics' height and principal point follow, the colour stays."""
+    depth_file = capture / view / "depth.png"
+    depth = np.asarray(Image.open(depth_file))
+    Image.fromarray(np.ascontiguousarray(depth[rows:])).save(depth_file)
+    camera_file = capture / view / "camera.json"
+    camera = json.loads(camera_file.read_text())
+    camera["depth_intrinsics"]["height"] -= rows
+    camera["depth_intrinsics"]["cy"] -= rows
+    camera_file.write_text(json.dumps(camera, indent=2))

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 from dataclasses import replace
 from pathlib import Path
 
@@ -25,8 +26,9 @@ from canopy_core.measure import (
     measure,
 )
 from canopy_core.metrics import CanopyMetrics
+from canopy_core.register import apply, invert
 from canopy_core.simulate import simulate_capture
-from tests.core.edits import paint_blue_grey, take_away_blue_ball
+from tests.core.edits import crop_depth_top, paint_blue_grey, take_away_blue_ball
 
 
 def _truth(capture: Path) -> dict:
@@ -701,3 +703,51 @@ def test_a_stake_standing_above_the_crown_fails_clearly_instead_of_raising_h(tmp
     assert refused.value.view is None  # judged on the views together, not on one alone
     allowed = measure(capture, overrides={"metrics": {"max_thin_top_m": 1.0}})
     assert allowed.modes["merged"].height_m > truth["height_m"] + 0.25  # what it measured before
+
+
+def _row_of_top(capture: Path, result: Measurement, view: int) -> int:
+    """The depth-image row of a view in which the measured tree's top lies."""
+    depth = load_capture(capture).views[view].camera.depth
+    _, y, z = apply(invert(result.views[view].world_from_view), np.array([result.merged.marks.top_m]))[0]
+    return int(depth.fy * y / z + depth.cy)
+
+
+def test_a_tree_whose_top_runs_out_of_every_view_is_refused_not_measured_short(
+    native_capture: Path, native_result: Measurement, tmp_path: Path
+) -> None:
+    # Both cameras see 40 rows less above: the tree's top is out of both images. Before the frame was
+    # judged, H came out short by what was cut, without an error.
+    capture = tmp_path / "tree"
+    shutil.copytree(native_capture, capture)
+    for index, view in enumerate(("views/1", "views/2")):
+        crop_depth_top(capture, view, _row_of_top(native_capture, native_result, index) + 40)
+    with pytest.raises(MeasurementError, match="top edge") as raised:
+        measure(capture)
+    assert "height_m" in raised.value.message and "step back" in (raised.value.hint or "")
+
+
+def test_a_view_cut_at_its_top_is_marked_and_the_other_view_carries_the_merged_height(
+    native_capture: Path, native_result: Measurement, tmp_path: Path
+) -> None:
+    capture = tmp_path / "tree"
+    shutil.copytree(native_capture, capture)
+    crop_depth_top(capture, "views/2", _row_of_top(native_capture, native_result, 1) + 40)
+    result = measure(capture)
+    assert "height_m" in result.modes["views/2"].cut_by_frame
+    assert result.modes["views/1"].cut_by_frame == () and result.merged.cut_by_frame == ()
+    assert result.modes["views/2"].height_m < result.merged.height_m - 0.05
+    _assert_within_5_percent(result.merged, _truth(capture))
+    assert result.merged.height_m == pytest.approx(_truth(capture)["height_m"], rel=0.02)
+
+
+def test_a_tree_taller_than_the_region_of_interest_is_refused_naming_the_setting(
+    native_capture: Path,
+) -> None:
+    # The region of interest's top cuts the tree as a frame would: H would read its height, not the tree's.
+    height = _truth(native_capture)["height_m"]
+    with pytest.raises(MeasurementError, match="region of interest's top") as raised:
+        measure(native_capture, overrides={"roi": {"max_height_m": round(height - 0.3, 2)}})
+    assert raised.value.field == "roi.max_height_m"
+    assert measure(
+        native_capture, overrides={"roi": {"max_height_m": round(height + 0.2, 2)}}
+    ).merged.height_m == (pytest.approx(height, rel=0.02))

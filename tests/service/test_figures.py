@@ -16,7 +16,9 @@ from matplotlib.figure import Figure
 from PIL import Image
 
 from canopy_core.measure import Measurement, measure
+from service.farm.history import TreeHistory
 from service.reports.figures import draw_elevation, draw_height_density, draw_modes, draw_top_view
+from service.reports.page import report_html
 from tests.service.running import Service, start_service, upload_capture, wait_for_job
 
 
@@ -130,3 +132,20 @@ def test_the_worker_stores_every_figure_with_the_measurement(
         assert report.status_code == 200 and report.content == client.get(figures["report"]).content
     assert again.status_code == 304
     assert missing.status_code == 404 and missing.json()["code"] == "unknown_figure"
+
+
+def test_the_report_marks_a_view_s_metrics_its_frame_cut_as_bounds(measured: Measurement) -> None:
+    """A view whose image the tree runs out of reads at least its H (and at most its crown base): the
+    report's table says so beside the number instead of showing it as a measurement like the others."""
+    document = {**measured.to_dict(), "id": 1, "job_id": 1, "tree_id": 1}
+    document["modes"]["views/2"]["cut_by_frame"] = ["crown_base_m", "height_m", "thickness_m"]
+    growth = TreeHistory(tree_id=1, orchard="o", row="r", tree="t", measurements=[])
+    page = report_html(document, {}, measured.cloud, growth)
+    table = page[page.index("<h2>Per view and merged</h2>") : page.index("<h2>Registration</h2>")]
+    rows = {row.split("</td>", 1)[0]: row for row in table.split("<tr><td>")[1:]}
+    cut, whole = rows["views/2"], rows["views/1"]
+    assert f"&ge; {measured.modes['views/2'].height_m:.3f}" in cut
+    assert f"&le; {measured.modes['views/2'].crown_base_m:.3f}" in cut
+    assert f"<td>{measured.modes['views/2'].width_m:.3f}</td>" in cut
+    assert "&ge;" not in whole and "&le;" not in whole
+    assert "runs out of that view's image" in table

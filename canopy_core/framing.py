@@ -1,0 +1,168 @@
+"""Where the tree runs out of the cameras' images: a crown cut off by a frame's edge reads short.
+
+A depth camera sees only what falls inside its image. A crown that reaches an edge of a view's image may
+go on beyond it, out of that view: the top, an end of W or the lowest leaves that view shows are where its
+frame cut the crown, not where the crown ends, and nothing in the numbers says so (a crew standing close
+to a tall tree, or holding the camera level). Another view may look beyond that edge: had the crown gone
+on there, that view would have seen it, and its own points would carry the measurement on (and, if they
+in turn run out of its image, must be looked beyond by yet another view). Only where no view looked
+beyond is a measurement cut by the frame. This is geometry of the cameras alone, whatever the colours.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from canopy_core.backproject import project_points
+from canopy_core.capture import Intrinsics
+from canopy_core.register import apply, invert
+
+__all__ = ["EDGES", "FrameCut", "ViewFrame", "cut_metrics", "frame_cuts"]
+
+EDGES = ("top", "bottom", "left", "right")
+"""A depth image's edges, as the camera holds it (rows grow downward, columns to the right)."""
+
+_SHORT_BY_EDGE = {
+    "top": ("height_m", "thickness_m", "thickness_kde_m"),
+    "bottom": ("crown_base_m", "crown_base_kde_m", "thickness_m", "thickness_kde_m"),
+    "left": ("width_m", "diameter_along_row_m", "diameter_across_row_m"),
+    "right": ("width_m", "diameter_along_row_m", "diameter_across_row_m"),
+}
+"""The metrics a tree cut at each edge may read wrong: lengths short, the crown base high; its area and
+volumes short too, whichever the edge. A camera is held upright (roll of a few degrees), so the image's
+top edge cuts the tree's top."""
+_SHORT_BY_ANY_EDGE = ("projected_area_m2", "volume_hull_m3", "volume_voxel_m3")
+
+
+@dataclass(frozen=True, eq=False)
+class ViewFrame:
+    """What one view's depth image covers: its camera's intrinsics and pose (``world_from_view``, 4x4),
+    and the farthest depth it reads (``max_depth_m``: beyond it the view sees nothing, in frame or not)."""
+
+    name: str
+    intrinsics: Intrinsics
+    world_from_view: np.ndarray
+    max_depth_m: float
+
+
+@dataclass(frozen=True)
+class FrameCut:
+    """``points`` points of the tree at ``edge`` of view ``view``'s depth image that no other view looked
+    beyond: the tree may go on there, out of every view."""
+
+    view: str
+    edge: str
+    points: int
+
+    def describe(self) -> str:
+        """The cut in words, for an error message or a report."""
+        return f"{self.view}'s {self.edge} edge ({self.points} points)"
+
+
+def frame_cuts(
+    points_by_view: Sequence[np.ndarray],
+    frames: Sequence[ViewFrame],
+    *,
+    margin_px: float,
+    min_points: int,
+    bottom_points_by_view: Sequence[np.ndarray] | None = None,
+) -> tuple[FrameCut, ...]:
+    """Where the tree runs out of a view's image and no other view looked beyond it.
+
+    Parameters
+    ----------
+    points_by_view
+        Per view, its points of the tree (world frame, ``(N, 3)``), in the order of ``frames``.
+    frames
+        What each view's image covers.
+    margin_px
+        A point within this many pixels of an edge (pixel centres) is at that edge. Another view looked
+        beyond it if the point moved this many of its own view's pixel pitches out through that edge
+        (along the normal of the plane the edge and the camera's centre span) falls inside the other
+        view's image, in front of it and within its depth range.
+    min_points
+        Fewer points than this at an edge, unexplained, are specks (a flying pixel), not the tree.
+    bottom_points_by_view
+        Per view, the points judged at the bottom edge instead of ``points_by_view``: the crown alone, since
+        a trunk cut at its foot changes no metric (H is read from the ground frame). None: the same.
+
+    Returns
+    -------
+    tuple of FrameCut
+        One per view and edge where at least ``min_points`` points are cut; empty when every view frames
+        the tree, or another view looked beyond wherever one does not.
+    """
+    cuts = []
+    for index, (points, frame) in enumerate(zip(points_by_view, frames, strict=True)):
+        others = [other for position, other in enumerate(frames) if position != index]
+        for edge in EDGES:
+            judged = (
+                points if edge != "bottom" or bottom_points_by_view is None else bottom_points_by_view[index]
+            )
+            if judged.shape[0] < min_points:
+                continue
+            at_edge, probes = _at_edge(judged, frame, edge, margin_px=margin_px)
+            if at_edge.shape[0] < min_points:
+                continue
+            looked_beyond = np.zeros(at_edge.shape[0], dtype=bool)
+            for other in others:
+                looked_beyond |= _inside(probes, other)
+            unexplained = int(np.count_nonzero(~looked_beyond))
+            if unexplained >= min_points:
+                cuts.append(FrameCut(view=frame.name, edge=edge, points=unexplained))
+    return tuple(cuts)
+
+
+def cut_metrics(cuts: Sequence[FrameCut]) -> tuple[str, ...]:
+    """The names of the metrics (``CanopyMetrics`` fields) that ``cuts`` may make read wrong (lengths, areas
+    and volumes short, the crown base high), sorted; empty without cuts."""
+    if not cuts:
+        return ()
+    names = [name for cut in cuts for name in _SHORT_BY_EDGE[cut.edge]] + list(_SHORT_BY_ANY_EDGE)
+    return tuple(dict.fromkeys(sorted(names)))
+
+
+def _at_edge(
+    points_m: np.ndarray, frame: ViewFrame, edge: str, *, margin_px: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """The points within ``margin_px`` of ``edge`` of the frame's image, and each moved ``margin_px`` of
+    its pixel pitches out through that edge (world frame)."""
+    intrinsics = frame.intrinsics
+    camera_points = apply(invert(frame.world_from_view), points_m)
+    pixels = project_points(camera_points, intrinsics)
+    # Each edge as (distance inside the image in pixels, focal length across it, outward normal of the
+    # plane through the camera's centre and that edge, in the camera's axes).
+    last_column, last_row = intrinsics.width - 1, intrinsics.height - 1
+    if edge == "top":
+        inside_px, focal, normal = pixels[:, 1], intrinsics.fy, (0.0, -intrinsics.fy, -intrinsics.cy)
+    elif edge == "bottom":
+        inside_px, focal = last_row - pixels[:, 1], intrinsics.fy
+        normal = (0.0, intrinsics.fy, intrinsics.cy - last_row)
+    elif edge == "left":
+        inside_px, focal, normal = pixels[:, 0], intrinsics.fx, (-intrinsics.fx, 0.0, -intrinsics.cx)
+    else:
+        inside_px, focal = last_column - pixels[:, 0], intrinsics.fx
+        normal = (intrinsics.fx, 0.0, intrinsics.cx - last_column)
+    near = inside_px < margin_px
+    outward = frame.world_from_view[:3, :3] @ (np.array(normal) / np.linalg.norm(normal))
+    pitch_m = camera_points[near, 2] / focal
+    return points_m[near], points_m[near] + np.outer(margin_px * pitch_m, outward)
+
+
+def _inside(points_m: np.ndarray, frame: ViewFrame) -> np.ndarray:
+    """Mask of the points that fall inside the frame's image (pixel centres), in front of its camera and
+    no farther than it reads."""
+    camera_points = apply(invert(frame.world_from_view), points_m)
+    depth = camera_points[:, 2]
+    ahead = (depth > 0) & (depth <= frame.max_depth_m)
+    pixels = project_points(np.where(ahead[:, None], camera_points, 1.0), frame.intrinsics)
+    return (
+        ahead
+        & (pixels[:, 0] >= 0)
+        & (pixels[:, 0] <= frame.intrinsics.width - 1)
+        & (pixels[:, 1] >= 0)
+        & (pixels[:, 1] <= frame.intrinsics.height - 1)
+    )
