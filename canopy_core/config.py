@@ -518,6 +518,13 @@ class MetricsConfig(_Section):
         "by which the last point sampled lies inside an outline, and the pixel or two by which the flying-"
         "pixel window and the registration move or drop it.",
     )
+    frame_hidden_margin_m: float = Field(
+        0.1,
+        gt=0.0,
+        description="A view that does not frame the tree whole looked beyond another's edge only where it "
+        "saw there: its depth reads no nearer than that place less this (a leaf layer and the depth noise), "
+        "or nothing; nearer, the crown in front hides it.",
+    )
     frame_min_points: int = Field(
         5,
         ge=1,

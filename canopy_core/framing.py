@@ -39,13 +39,15 @@ _SHORT_BY_ANY_EDGE = ("projected_area_m2", "volume_hull_m3", "volume_voxel_m3")
 
 @dataclass(frozen=True, eq=False)
 class ViewFrame:
-    """What one view's depth image covers: its camera's intrinsics and pose (``world_from_view``, 4x4),
-    and the farthest depth it reads (``max_depth_m``: beyond it the view sees nothing, in frame or not)."""
+    """What one view's depth image covers: its camera's intrinsics and pose (``world_from_view``, 4x4), the
+    farthest depth it reads (``max_depth_m``: beyond it the view sees nothing, in frame or not), and what
+    it read (``depth_m``: the depth image in metres along its optical axis, 0 where nothing)."""
 
     name: str
     intrinsics: Intrinsics
     world_from_view: np.ndarray
     max_depth_m: float
+    depth_m: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -68,23 +70,33 @@ def frame_cuts(
     *,
     margin_px: float,
     min_points: int,
+    hidden_margin_m: float,
     bottom_points_by_view: Sequence[np.ndarray] | None = None,
 ) -> tuple[FrameCut, ...]:
     """Where the tree runs out of a view's image and no other view looked beyond it.
+
+    Another view looked beyond a point at an edge if the point moved ``margin_px`` of its own view's pixel
+    pitches out through that edge (along the normal of the plane the edge and the camera's centre span)
+    falls inside the other view's image, in front of it and within its depth range, and, unless the other
+    view frames the tree whole (none of its own points at an edge), that view saw there: its depth image
+    reads no nearer than the moved point less ``hidden_margin_m`` at its pixel, or reads nothing (sky).
+    Where both views are cut, each sees the other's cut stretch across the crown, which hides what stands
+    beyond it (a tree's top behind its near shoulder); a view that frames the whole tree shows all of its
+    outline, and what it does not see is behind the crown it shows.
 
     Parameters
     ----------
     points_by_view
         Per view, its points of the tree (world frame, ``(N, 3)``), in the order of ``frames``.
     frames
-        What each view's image covers.
+        What each view's image covers, and what it read.
     margin_px
-        A point within this many pixels of an edge (pixel centres) is at that edge. Another view looked
-        beyond it if the point moved this many of its own view's pixel pitches out through that edge
-        (along the normal of the plane the edge and the camera's centre span) falls inside the other
-        view's image, in front of it and within its depth range.
+        A point within this many pixels of an edge (pixel centres) is at that edge; and how far out it is
+        moved to be looked at by the others.
     min_points
         Fewer points than this at an edge, unexplained, are specks (a flying pixel), not the tree.
+    hidden_margin_m
+        A view that reads nearer than the moved point by more than this sees something in front of it.
     bottom_points_by_view
         Per view, the points judged at the bottom edge instead of ``points_by_view``: the crown alone, since
         a trunk cut at its foot changes no metric (H is read from the ground frame). None: the same.
@@ -95,21 +107,30 @@ def frame_cuts(
         One per view and edge where at least ``min_points`` points are cut; empty when every view frames
         the tree, or another view looked beyond wherever one does not.
     """
-    cuts = []
-    for index, (points, frame) in enumerate(zip(points_by_view, frames, strict=True)):
-        others = [other for position, other in enumerate(frames) if position != index]
-        for edge in EDGES:
-            judged = (
-                points if edge != "bottom" or bottom_points_by_view is None else bottom_points_by_view[index]
+    at_edges = [
+        {
+            edge: _at_edge(
+                points if edge != "bottom" or bottom_points_by_view is None else bottom_points_by_view[index],
+                frame,
+                edge,
+                margin_px=margin_px,
             )
-            if judged.shape[0] < min_points:
+            for edge in EDGES
+        }
+        for index, (points, frame) in enumerate(zip(points_by_view, frames, strict=True))
+    ]
+    whole = [all(probes.shape[0] < min_points for probes in edges.values()) for edges in at_edges]
+    cuts = []
+    for index, frame in enumerate(frames):
+        for edge, probes in at_edges[index].items():
+            if probes.shape[0] < min_points:
                 continue
-            at_edge, probes = _at_edge(judged, frame, edge, margin_px=margin_px)
-            if at_edge.shape[0] < min_points:
-                continue
-            looked_beyond = np.zeros(at_edge.shape[0], dtype=bool)
-            for other in others:
-                looked_beyond |= _inside(probes, other)
+            looked_beyond = np.zeros(probes.shape[0], dtype=bool)
+            for other, other_whole in zip(frames, whole, strict=True):
+                if other is not frame:
+                    looked_beyond |= _inside(
+                        probes, other, hidden_margin_m=None if other_whole else hidden_margin_m
+                    )
             unexplained = int(np.count_nonzero(~looked_beyond))
             if unexplained >= min_points:
                 cuts.append(FrameCut(view=frame.name, edge=edge, points=unexplained))
@@ -125,11 +146,9 @@ def cut_metrics(cuts: Sequence[FrameCut]) -> tuple[str, ...]:
     return tuple(dict.fromkeys(sorted(names)))
 
 
-def _at_edge(
-    points_m: np.ndarray, frame: ViewFrame, edge: str, *, margin_px: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """The points within ``margin_px`` of ``edge`` of the frame's image, and each moved ``margin_px`` of
-    its pixel pitches out through that edge (world frame)."""
+def _at_edge(points_m: np.ndarray, frame: ViewFrame, edge: str, *, margin_px: float) -> np.ndarray:
+    """The points within ``margin_px`` of ``edge`` of the frame's image, each moved ``margin_px`` of its
+    pixel pitches out through that edge (world frame)."""
     intrinsics = frame.intrinsics
     camera_points = apply(invert(frame.world_from_view), points_m)
     pixels = project_points(camera_points, intrinsics)
@@ -149,20 +168,28 @@ def _at_edge(
     near = inside_px < margin_px
     outward = frame.world_from_view[:3, :3] @ (np.array(normal) / np.linalg.norm(normal))
     pitch_m = camera_points[near, 2] / focal
-    return points_m[near], points_m[near] + np.outer(margin_px * pitch_m, outward)
+    return points_m[near] + np.outer(margin_px * pitch_m, outward)
 
 
-def _inside(points_m: np.ndarray, frame: ViewFrame) -> np.ndarray:
+def _inside(points_m: np.ndarray, frame: ViewFrame, *, hidden_margin_m: float | None) -> np.ndarray:
     """Mask of the points that fall inside the frame's image (pixel centres), in front of its camera and
-    no farther than it reads."""
+    no farther than it reads; with ``hidden_margin_m``, only those it saw there: its depth at their pixel
+    reads nothing, or no nearer than they stand less that margin."""
     camera_points = apply(invert(frame.world_from_view), points_m)
     depth = camera_points[:, 2]
     ahead = (depth > 0) & (depth <= frame.max_depth_m)
     pixels = project_points(np.where(ahead[:, None], camera_points, 1.0), frame.intrinsics)
-    return (
+    inside = (
         ahead
         & (pixels[:, 0] >= 0)
         & (pixels[:, 0] <= frame.intrinsics.width - 1)
         & (pixels[:, 1] >= 0)
         & (pixels[:, 1] <= frame.intrinsics.height - 1)
     )
+    if hidden_margin_m is None:
+        return inside
+    columns, rows = np.rint(pixels[inside]).astype(np.int64).T
+    read = frame.depth_m[rows, columns]
+    seen = inside.copy()
+    seen[inside] = (read == 0) | (read >= depth[inside] - hidden_margin_m)
+    return seen

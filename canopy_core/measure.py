@@ -441,7 +441,9 @@ def _modes(
         for view_points, mask in zip(points, np.split(measured & crown, offsets), strict=True)
     ]
     frames = [
-        ViewFrame(view.name, view.camera.depth, pose, max_depth_m=config.filters.max_depth_m)
+        ViewFrame(
+            view.name, view.camera.depth, pose, max_depth_m=config.filters.max_depth_m, depth_m=view.depth_m
+        )
         for view, pose in zip(capture.views, world_from_view, strict=True)
     ]
     _refuse_cut_off(_frame_cuts(kept, kept_crown, frames, config), np.concatenate(kept), config)
@@ -478,6 +480,7 @@ def _frame_cuts(
         frames,
         margin_px=config.metrics.frame_margin_px,
         min_points=config.metrics.frame_min_points,
+        hidden_margin_m=config.metrics.frame_hidden_margin_m,
         bottom_points_by_view=kept_crown,
     )
 
