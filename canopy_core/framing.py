@@ -71,7 +71,7 @@ def frame_cuts(
     margin_px: float,
     min_points: int,
     hidden_margin_m: float,
-    bottom_points_by_view: Sequence[np.ndarray] | None = None,
+    bottom_masks: Sequence[np.ndarray] | None = None,
 ) -> tuple[FrameCut, ...]:
     """Where the tree runs out of a view's image and no other view looked beyond it.
 
@@ -97,9 +97,9 @@ def frame_cuts(
         Fewer points than this at an edge, unexplained, are specks (a flying pixel), not the tree.
     hidden_margin_m
         A view that reads nearer than the moved point by more than this sees something in front of it.
-    bottom_points_by_view
-        Per view, the points judged at the bottom edge instead of ``points_by_view``: the crown alone, since
-        a trunk cut at its foot changes no metric (H is read from the ground frame). None: the same.
+    bottom_masks
+        Per view, the mask of its points judged at the bottom edge: the crown alone, since a trunk cut at its
+        foot changes no metric (H is read from the ground frame). None: every point.
 
     Returns
     -------
@@ -108,16 +108,10 @@ def frame_cuts(
         the tree, or another view looked beyond wherever one does not.
     """
     at_edges = [
-        {
-            edge: _at_edge(
-                points if edge != "bottom" or bottom_points_by_view is None else bottom_points_by_view[index],
-                frame,
-                edge,
-                margin_px=margin_px,
-            )
-            for edge in EDGES
-        }
-        for index, (points, frame) in enumerate(zip(points_by_view, frames, strict=True))
+        _edge_probes(
+            points, frame, margin_px=margin_px, bottom=None if bottom_masks is None else bottom_masks[i]
+        )
+        for i, (points, frame) in enumerate(zip(points_by_view, frames, strict=True))
     ]
     whole = [all(probes.shape[0] < min_points for probes in edges.values()) for edges in at_edges]
     cuts = []
@@ -146,29 +140,32 @@ def cut_metrics(cuts: Sequence[FrameCut]) -> tuple[str, ...]:
     return tuple(dict.fromkeys(sorted(names)))
 
 
-def _at_edge(points_m: np.ndarray, frame: ViewFrame, edge: str, *, margin_px: float) -> np.ndarray:
-    """The points within ``margin_px`` of ``edge`` of the frame's image, each moved ``margin_px`` of its
-    pixel pitches out through that edge (world frame)."""
+def _edge_probes(
+    points_m: np.ndarray, frame: ViewFrame, *, margin_px: float, bottom: np.ndarray | None
+) -> dict[str, np.ndarray]:
+    """Per edge of the frame's image, its points within ``margin_px`` of that edge (at the bottom, only
+    those of ``bottom``), each moved ``margin_px`` of its pixel pitches out through the edge (world
+    frame)."""
     intrinsics = frame.intrinsics
     camera_points = apply(invert(frame.world_from_view), points_m)
-    pixels = project_points(camera_points, intrinsics)
+    columns, rows = project_points(camera_points, intrinsics).T
+    last_column, last_row = intrinsics.width - 1, intrinsics.height - 1
     # Each edge as (distance inside the image in pixels, focal length across it, outward normal of the
     # plane through the camera's centre and that edge, in the camera's axes).
-    last_column, last_row = intrinsics.width - 1, intrinsics.height - 1
-    if edge == "top":
-        inside_px, focal, normal = pixels[:, 1], intrinsics.fy, (0.0, -intrinsics.fy, -intrinsics.cy)
-    elif edge == "bottom":
-        inside_px, focal = last_row - pixels[:, 1], intrinsics.fy
-        normal = (0.0, intrinsics.fy, intrinsics.cy - last_row)
-    elif edge == "left":
-        inside_px, focal, normal = pixels[:, 0], intrinsics.fx, (-intrinsics.fx, 0.0, -intrinsics.cx)
-    else:
-        inside_px, focal = last_column - pixels[:, 0], intrinsics.fx
-        normal = (intrinsics.fx, 0.0, intrinsics.cx - last_column)
-    near = inside_px < margin_px
-    outward = frame.world_from_view[:3, :3] @ (np.array(normal) / np.linalg.norm(normal))
-    pitch_m = camera_points[near, 2] / focal
-    return points_m[near] + np.outer(margin_px * pitch_m, outward)
+    edges = {
+        "top": (rows, intrinsics.fy, (0.0, -intrinsics.fy, -intrinsics.cy)),
+        "bottom": (last_row - rows, intrinsics.fy, (0.0, intrinsics.fy, intrinsics.cy - last_row)),
+        "left": (columns, intrinsics.fx, (-intrinsics.fx, 0.0, -intrinsics.cx)),
+        "right": (last_column - columns, intrinsics.fx, (intrinsics.fx, 0.0, intrinsics.cx - last_column)),
+    }
+    probes = {}
+    for edge, (inside_px, focal, normal) in edges.items():
+        near = inside_px < margin_px
+        if edge == "bottom" and bottom is not None:
+            near &= bottom
+        outward = frame.world_from_view[:3, :3] @ (np.array(normal) / np.linalg.norm(normal))
+        probes[edge] = points_m[near] + np.outer(margin_px * camera_points[near, 2] / focal, outward)
+    return probes
 
 
 def _inside(points_m: np.ndarray, frame: ViewFrame, *, hidden_margin_m: float | None) -> np.ndarray:

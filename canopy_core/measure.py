@@ -437,8 +437,7 @@ def _modes(
     measured = measured_points(merged, trunk, crown=crown, foliage=merged_foliage, config=config.metrics)
     kept = [view_points[mask] for view_points, mask in zip(points, np.split(measured, offsets), strict=True)]
     kept_crown = [
-        view_points[mask]
-        for view_points, mask in zip(points, np.split(measured & crown, offsets), strict=True)
+        mask[kept_mask] for mask, kept_mask in zip(crowns, np.split(measured, offsets), strict=True)
     ]
     frames = [
         ViewFrame(
@@ -474,14 +473,15 @@ def _modes(
 def _frame_cuts(
     kept: list[np.ndarray], kept_crown: list[np.ndarray], frames: list[ViewFrame], config: MeasureConfig
 ) -> tuple[FrameCut, ...]:
-    """:func:`frame_cuts` of the views' measured points (``kept``), the bottom edge judged on their crown."""
+    """:func:`frame_cuts` of the views' measured points (``kept``), the bottom edge judged on their crown
+    (``kept_crown``: per view, the mask of its measured points that are crown)."""
     return frame_cuts(
         kept,
         frames,
         margin_px=config.metrics.frame_margin_px,
         min_points=config.metrics.frame_min_points,
         hidden_margin_m=config.metrics.frame_hidden_margin_m,
-        bottom_points_by_view=kept_crown,
+        bottom_masks=kept_crown,
     )
 
 

@@ -161,7 +161,7 @@ def test_a_trunk_cut_at_the_bottom_edge_is_judged_on_the_crown_alone() -> None:
     crown = _crown(3.0)
     trunk = _column(0.0, 1.0, 0.05, count=20_000)
     frame, seen = _view(np.vstack([trunk, crown]), "views/1", -1.0, distance_m=3.0, pitch_deg=25.0)
-    seen_crown = seen[seen[:, 2] > 1.0 + 1e-9]
+    crown_mask = seen[:, 2] > 1.0 + 1e-9
     assert _cuts([(frame, seen)]) == {("views/1", "bottom")}
     assert (
         frame_cuts(
@@ -170,7 +170,7 @@ def test_a_trunk_cut_at_the_bottom_edge_is_judged_on_the_crown_alone() -> None:
             margin_px=3.0,
             min_points=5,
             hidden_margin_m=0.1,
-            bottom_points_by_view=[seen_crown],
+            bottom_masks=[crown_mask],
         )
         == ()
     )
