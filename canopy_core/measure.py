@@ -487,9 +487,10 @@ def _frame_cuts(
 
 def _refuse_cut_off(cuts: tuple[FrameCut, ...], kept: np.ndarray, config: MeasureConfig) -> None:
     """Raise a MeasurementError if the merged tree (``kept``: the points its metrics are read from) may go
-    on where nothing was measured: out of every view's image (``cuts``), or above the region of interest,
-    whose top the points reach within ``metrics.support_radius_m`` (at least ``metrics.frame_min_points``
-    of them)."""
+    on where nothing was measured: out of every view's image (``cuts``), or out of the region of interest
+    (the cylinder of ``roi.radius_m`` round the world's vertical axis, the trunk's, up to
+    ``roi.max_height_m``), whose top or wall the points reach within ``metrics.support_radius_m`` (at least
+    ``metrics.frame_min_points`` of them)."""
     if cuts:
         affected = [name for name in cut_metrics(cuts) if name in _HEADLINE_METRICS]
         raise MeasurementError(
@@ -500,13 +501,22 @@ def _refuse_cut_off(cuts: tuple[FrameCut, ...], kept: np.ndarray, config: Measur
             hint="measure it again with the whole tree, and some sky above its top, inside at least one "
             "view's image (step back, or tilt the camera)",
         )
-    ceiling = config.roi.max_height_m - config.metrics.support_radius_m
-    if np.count_nonzero(kept[:, 2] >= ceiling) >= config.metrics.frame_min_points:
+    near_m, enough = config.metrics.support_radius_m, config.metrics.frame_min_points
+    if np.count_nonzero(kept[:, 2] >= config.roi.max_height_m - near_m) >= enough:
         raise MeasurementError(
             f"the tree reaches the region of interest's top, {config.roi.max_height_m:g} m above the ground: "
             "it may go on above, so height_m and thickness_m would read short",
             field="roi.max_height_m",
             hint="raise roi.max_height_m above the tree's height",
+        )
+    if np.count_nonzero(np.linalg.norm(kept[:, :2], axis=1) >= config.roi.radius_m - near_m) >= enough:
+        raise MeasurementError(
+            f"the tree reaches the region of interest's wall, {config.roi.radius_m:g} m from its axis (the "
+            "trunk's): it may go on beyond (a crown wider than the region, or joined to a neighbour's), so "
+            "width_m would read the region's width",
+            field="roi.radius_m",
+            hint="for a crown that wide, raise roi.radius_m; a crown grown into its neighbours' cannot be "
+            "measured alone",
         )
 
 

@@ -751,3 +751,17 @@ def test_a_tree_taller_than_the_region_of_interest_is_refused_naming_the_setting
     assert measure(
         native_capture, overrides={"roi": {"max_height_m": round(height + 0.2, 2)}}
     ).merged.height_m == (pytest.approx(height, rel=0.02))
+
+
+def test_a_crown_wider_than_the_region_of_interest_is_refused_naming_the_setting(
+    native_capture: Path,
+) -> None:
+    # This crown is 1.39 m across: a region 0.7 m round its trunk cuts it at its wall, where W would read
+    # the region's width; one of 0.9 m holds it.
+    with pytest.raises(MeasurementError, match="region of interest's wall") as raised:
+        measure(native_capture, overrides={"roi": {"radius_m": 0.7}})
+    assert raised.value.field == "roi.radius_m"
+    width = _truth(native_capture)["width_m"]
+    assert measure(native_capture, overrides={"roi": {"radius_m": 0.9}}).merged.width_m == pytest.approx(
+        width, rel=0.02
+    )
