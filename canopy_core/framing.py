@@ -20,21 +20,20 @@ from canopy_core.backproject import project_points
 from canopy_core.capture import Intrinsics
 from canopy_core.register import apply, invert
 
-__all__ = ["EDGES", "FrameCut", "ViewFrame", "cut_metrics", "frame_cuts"]
+__all__ = ["FrameCut", "ViewFrame", "cut_metrics", "frame_cuts"]
 
-EDGES = ("top", "bottom", "left", "right")
-"""A depth image's edges, as the camera holds it (rows grow downward, columns to the right)."""
-
-_SHORT_BY_EDGE = {
-    "top": ("height_m", "thickness_m", "thickness_kde_m"),
-    "bottom": ("crown_base_m", "crown_base_kde_m", "thickness_m", "thickness_kde_m"),
-    "left": ("width_m", "diameter_along_row_m", "diameter_across_row_m"),
-    "right": ("width_m", "diameter_along_row_m", "diameter_across_row_m"),
+_CUT_BY_FACING = {
+    "up": ("height_m", "thickness_m", "thickness_kde_m"),
+    "down": ("crown_base_m", "crown_base_kde_m", "thickness_m", "thickness_kde_m"),
+    "sideways": ("width_m", "diameter_along_row_m", "diameter_across_row_m"),
 }
-"""The metrics a tree cut at each edge may read wrong: lengths short, the crown base high; its area and
-volumes short too, whichever the edge. A camera is held upright (roll of a few degrees), so the image's
-top edge cuts the tree's top."""
-_SHORT_BY_ANY_EDGE = ("projected_area_m2", "volume_hull_m3", "volume_voxel_m3")
+"""The metrics a tree cut by an edge facing each way may read wrong: lengths short, the crown base high;
+its area and volumes short too, whichever the edge."""
+_UP_COMPONENT = 0.5
+"""An edge faces up (down) when the outward normal of the plane through it and the camera points within
+60 degrees of the vertical: an upright camera's top edge (and a portrait one's side), even pitched up 25
+degrees."""
+_CUT_BY_ANY_EDGE = ("projected_area_m2", "volume_hull_m3", "volume_voxel_m3")
 
 
 @dataclass(frozen=True, eq=False)
@@ -52,11 +51,14 @@ class ViewFrame:
 
 @dataclass(frozen=True)
 class FrameCut:
-    """``points`` points of the tree at ``edge`` of view ``view``'s depth image that no other view looked
-    beyond: the tree may go on there, out of every view."""
+    """``points`` points of the tree at ``edge`` of view ``view``'s depth image (``top``, ``bottom``,
+    ``left`` or ``right``, as its rows and columns run) that no other view looked beyond: the tree may go
+    on there, out of every view, ``facing`` the way out through that edge (``up``, ``down`` or
+    ``sideways`` in the world)."""
 
     view: str
     edge: str
+    facing: str
     points: int
 
     def describe(self) -> str:
@@ -98,8 +100,8 @@ def frame_cuts(
     hidden_margin_m
         A view that reads nearer than the moved point by more than this sees something in front of it.
     bottom_masks
-        Per view, the mask of its points judged at the bottom edge: the crown alone, since a trunk cut at its
-        foot changes no metric (H is read from the ground frame). None: every point.
+        Per view, the mask of its points judged at an edge facing down: the crown alone, since a trunk cut
+        at its foot changes no metric (H is read from the ground frame). None: every point.
 
     Returns
     -------
@@ -113,10 +115,10 @@ def frame_cuts(
         )
         for i, (points, frame) in enumerate(zip(points_by_view, frames, strict=True))
     ]
-    whole = [all(probes.shape[0] < min_points for probes in edges.values()) for edges in at_edges]
+    whole = [all(probes.shape[0] < min_points for _, probes in edges.values()) for edges in at_edges]
     cuts = []
     for index, frame in enumerate(frames):
-        for edge, probes in at_edges[index].items():
+        for edge, (facing, probes) in at_edges[index].items():
             if probes.shape[0] < min_points:
                 continue
             looked_beyond = np.zeros(probes.shape[0], dtype=bool)
@@ -127,7 +129,7 @@ def frame_cuts(
                     )
             unexplained = int(np.count_nonzero(~looked_beyond))
             if unexplained >= min_points:
-                cuts.append(FrameCut(view=frame.name, edge=edge, points=unexplained))
+                cuts.append(FrameCut(view=frame.name, edge=edge, facing=facing, points=unexplained))
     return tuple(cuts)
 
 
@@ -136,16 +138,16 @@ def cut_metrics(cuts: Sequence[FrameCut]) -> tuple[str, ...]:
     and volumes short, the crown base high), sorted; empty without cuts."""
     if not cuts:
         return ()
-    names = [name for cut in cuts for name in _SHORT_BY_EDGE[cut.edge]] + list(_SHORT_BY_ANY_EDGE)
+    names = [name for cut in cuts for name in _CUT_BY_FACING[cut.facing]] + list(_CUT_BY_ANY_EDGE)
     return tuple(dict.fromkeys(sorted(names)))
 
 
 def _edge_probes(
     points_m: np.ndarray, frame: ViewFrame, *, margin_px: float, bottom: np.ndarray | None
-) -> dict[str, np.ndarray]:
-    """Per edge of the frame's image, its points within ``margin_px`` of that edge (at the bottom, only
-    those of ``bottom``), each moved ``margin_px`` of its pixel pitches out through the edge (world
-    frame)."""
+) -> dict[str, tuple[str, np.ndarray]]:
+    """Per edge of the frame's image, which way it faces in the world and its points within ``margin_px``
+    of it (at an edge facing down, only those of ``bottom``), each moved ``margin_px`` of its pixel pitches
+    out through the edge (world frame)."""
     intrinsics = frame.intrinsics
     camera_points = apply(invert(frame.world_from_view), points_m)
     columns, rows = project_points(camera_points, intrinsics).T
@@ -160,11 +162,17 @@ def _edge_probes(
     }
     probes = {}
     for edge, (inside_px, focal, normal) in edges.items():
-        near = inside_px < margin_px
-        if edge == "bottom" and bottom is not None:
-            near &= bottom
         outward = frame.world_from_view[:3, :3] @ (np.array(normal) / np.linalg.norm(normal))
-        probes[edge] = points_m[near] + np.outer(margin_px * camera_points[near, 2] / focal, outward)
+        facing = (
+            "up" if outward[2] >= _UP_COMPONENT else "down" if outward[2] <= -_UP_COMPONENT else "sideways"
+        )
+        near = inside_px < margin_px
+        if facing == "down" and bottom is not None:
+            near &= bottom
+        probes[edge] = (
+            facing,
+            points_m[near] + np.outer(margin_px * camera_points[near, 2] / focal, outward),
+        )
     return probes
 
 

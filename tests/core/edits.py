@@ -61,3 +61,32 @@ def crop_depth_top(capture: Path, view: str, rows: int) -> None:
     camera["depth_intrinsics"]["height"] -= rows
     camera["depth_intrinsics"]["cy"] -= rows
     camera_file.write_text(json.dumps(camera, indent=2))
+
+
+def turn_to_portrait(capture: Path) -> None:
+    """Turn every view a quarter turn clockwise, as a camera held in portrait takes it: images rotated,
+    intrinsics swapped to match, and the depth-to-colour transform carried into the turned axes (x' = -y,
+    y' = x)."""
+    turn = np.eye(4)
+    turn[:3, :3] = [[0, -1, 0], [1, 0, 0], [0, 0, 1]]
+    for view in sorted((capture / "views").iterdir()):
+        for image_file in (view / "depth.png", view / "color.jpg", view / "color.png"):
+            if image_file.exists():
+                image = np.asarray(Image.open(image_file))
+                Image.fromarray(np.ascontiguousarray(np.rot90(image, k=-1))).save(image_file, quality=95)
+        camera_file = view / "camera.json"
+        camera = json.loads(camera_file.read_text())
+        for key in ("depth_intrinsics", "color_intrinsics"):
+            if key in camera:
+                old = camera[key]
+                camera[key] = {
+                    "width": old["height"],
+                    "height": old["width"],
+                    "fx": old["fy"],
+                    "fy": old["fx"],
+                    "cx": old["height"] - 1 - old["cy"],
+                    "cy": old["cx"],
+                }
+        if "depth_to_color" in camera:
+            camera["depth_to_color"] = (turn @ np.array(camera["depth_to_color"]) @ turn.T).tolist()
+        camera_file.write_text(json.dumps(camera, indent=2))

@@ -14,15 +14,23 @@ KINECT = Intrinsics(width=512, height=424, fx=365.0, fy=365.0, cx=256.0, cy=212.
 
 
 def _camera_on(
-    side: float, *, height_m: float = 1.2, distance_m: float = 3.0, pitch_deg: float = 0.0
+    side: float,
+    *,
+    height_m: float = 1.2,
+    distance_m: float = 3.0,
+    pitch_deg: float = 0.0,
+    roll_deg: float = 0.0,
 ) -> np.ndarray:
-    """A level camera's world_from_view (OpenCV axes: x right, y down, z forward) standing ``distance_m``
-    from the trunk on the side ``side`` (-1: -y, 1: +y), looking at it, pitched up by ``pitch_deg``."""
+    """A camera's world_from_view (OpenCV axes: x right, y down, z forward) standing ``distance_m`` from the
+    trunk on the side ``side`` (-1: -y, 1: +y), looking at it, pitched up by ``pitch_deg`` and rolled
+    clockwise (seen from behind) by ``roll_deg``."""
     forward = np.array([0.0, -side, 0.0])
     right = np.cross(forward, [0.0, 0.0, 1.0])
     pitch = np.radians(pitch_deg)
     forward_pitched = np.cos(pitch) * forward + np.sin(pitch) * np.array([0.0, 0.0, 1.0])
     down = np.cross(forward_pitched, right)
+    roll = np.radians(roll_deg)
+    right, down = np.cos(roll) * right + np.sin(roll) * down, np.cos(roll) * down - np.sin(roll) * right
     pose = np.eye(4)
     pose[:3, :3] = np.column_stack([right, down, forward_pitched])
     pose[:3, 3] = [0.0, side * distance_m, height_m]
@@ -153,7 +161,7 @@ def test_a_few_specks_at_the_edge_are_not_a_cut() -> None:
     assert _cuts([(frame, np.vstack([crown, specks]))]) == set()
     assert frame_cuts(
         [np.vstack([crown, specks])], [frame], margin_px=3.0, min_points=4, hidden_margin_m=0.1
-    ) == (FrameCut("views/1", "top", 4),)
+    ) == (FrameCut("views/1", "top", "up", 4),)
 
 
 def test_a_trunk_cut_at_the_bottom_edge_is_judged_on_the_crown_alone() -> None:
@@ -194,3 +202,13 @@ def test_a_crown_wider_than_the_frame_is_cut_at_its_sides(edge: str) -> None:
     assert _cuts([view]) == {("views/1", edge)}
     found = frame_cuts([view[1]], [view[0]], margin_px=3.0, min_points=5, hidden_margin_m=0.1)
     assert "width_m" in cut_metrics(found) and "height_m" not in cut_metrics(found)
+
+
+def test_a_camera_held_in_portrait_is_cut_at_the_image_side_that_faces_up() -> None:
+    # Rolled a quarter turn, the image's left edge faces the sky: a tall tree runs out of it there, and
+    # that cut makes H read short, not W.
+    crown = _crown(3.6)
+    view = _view(crown, "views/1", -1.0, distance_m=2.5, roll_deg=90.0)
+    found = frame_cuts([view[1]], [view[0]], margin_px=3.0, min_points=5, hidden_margin_m=0.1)
+    assert [(cut.edge, cut.facing) for cut in found] == [("left", "up")]
+    assert "height_m" in cut_metrics(found) and "width_m" not in cut_metrics(found)

@@ -28,7 +28,7 @@ from canopy_core.measure import (
 from canopy_core.metrics import CanopyMetrics
 from canopy_core.register import apply, invert
 from canopy_core.simulate import simulate_capture
-from tests.core.edits import crop_depth_top, paint_blue_grey, take_away_blue_ball
+from tests.core.edits import crop_depth_top, paint_blue_grey, take_away_blue_ball, turn_to_portrait
 
 
 def _truth(capture: Path) -> dict:
@@ -765,3 +765,14 @@ def test_a_crown_wider_than_the_region_of_interest_is_refused_naming_the_setting
     assert measure(native_capture, overrides={"roi": {"radius_m": 0.9}}).merged.width_m == pytest.approx(
         width, rel=0.02
     )
+
+
+def test_cameras_held_in_portrait_measure_the_same_tree(native_capture: Path, tmp_path: Path) -> None:
+    # A crew may turn the camera a quarter turn to fit a tall tree: up is then along the image's rows.
+    capture = tmp_path / "tree"
+    shutil.copytree(native_capture, capture)
+    turn_to_portrait(capture)
+    result = measure(capture)
+    _assert_within_5_percent(result.merged, _truth(capture))
+    assert result.merged.height_m == pytest.approx(_truth(capture)["height_m"], rel=0.02)
+    assert all(mode.cut_by_frame == () for mode in result.modes.values())
