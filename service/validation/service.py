@@ -16,6 +16,7 @@ import csv
 import io
 from collections import defaultdict
 from datetime import UTC, datetime, time
+from typing import Any
 
 import numpy as np
 from sqlalchemy import select
@@ -26,7 +27,7 @@ from service.spreadsheet import safe_cell
 from service.validation.manual import METRIC_COLUMNS
 from service.validation.schemas import Metrics, ModeMetricRow, Pair, Unmatched, Validation
 
-__all__ = ["MERGED", "validation", "validation_csv"]
+__all__ = ["MERGED", "calculated_metrics", "validation", "validation_csv"]
 
 MERGED = "merged"
 _SECONDS_PER_DAY = 86_400.0
@@ -80,13 +81,25 @@ def validation(
                 measurement_id=measurement_id,
                 captured_at=captured_at,
                 days_apart=(captured_at - noon).total_seconds() / _SECONDS_PER_DAY,
-                calculated={
-                    mode: Metrics(**{metric: values.get(metric) for metric in METRIC_COLUMNS})
-                    for mode, values in result["modes"].items()
-                },
+                calculated=calculated_metrics(result["modes"]),
             )
         )
     return Validation(window_days=window_days, pairs=pairs, unmatched=unmatched, table=table(pairs))
+
+
+def calculated_metrics(modes: dict[str, dict[str, Any]]) -> dict[str, Metrics]:
+    """Per mode of a measurement (its document's ``modes``), H, W and D as Table 1 compares them; a view's
+    metric its own image's edge cut (``cut_by_frame``: the tree runs out of that view) is None, left out
+    like a value not measured, since it is a bound, not a measurement."""
+    return {
+        mode: Metrics(
+            **{
+                metric: None if metric in values.get("cut_by_frame", ()) else values.get(metric)
+                for metric in METRIC_COLUMNS
+            }
+        )
+        for mode, values in modes.items()
+    }
 
 
 def table(pairs: list[Pair]) -> list[ModeMetricRow]:

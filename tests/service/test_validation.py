@@ -16,6 +16,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from service.validation.schemas import Metrics
+from service.validation.service import calculated_metrics
 from tests.service.running import Service, start_service, upload_capture, wait_for_job
 
 ORCHARD, ROW = "Validation orchard", "R7"
@@ -204,3 +206,22 @@ def test_a_bad_manual_file_is_a_422_naming_what_is_wrong(
         answer = client.post("/v1/validation/manual", content=body)
     assert answer.status_code == 422, answer.text
     assert expected in answer.json()["detail"]
+
+
+def test_a_view_s_metric_its_frame_cut_is_left_out_of_table_1_like_one_not_measured() -> None:
+    """A view that the tree runs out of reads a bound on H, not H: Table 1 leaves it out of that view's
+    row (as a value the manual file lacks), and keeps the view's other metrics and the merged ones."""
+    modes = {
+        "views/1": {
+            "height_m": 2.2,
+            "width_m": 1.5,
+            "thickness_m": 1.1,
+            "cut_by_frame": ["height_m", "thickness_m"],
+        },
+        "views/2": {"height_m": 2.6, "width_m": 1.6, "thickness_m": 1.5, "cut_by_frame": []},
+        "merged": {"height_m": 2.6, "width_m": 1.6, "thickness_m": 1.5},  # measured before the field existed
+    }
+    calculated = calculated_metrics(modes)
+    assert calculated["views/1"] == Metrics(height_m=None, width_m=1.5, thickness_m=None)
+    assert calculated["views/2"] == Metrics(height_m=2.6, width_m=1.6, thickness_m=1.5)
+    assert calculated["merged"] == Metrics(height_m=2.6, width_m=1.6, thickness_m=1.5)
