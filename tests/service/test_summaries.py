@@ -26,8 +26,10 @@ ORCHARD, ROW = "Summary orchard", "+R1"
 def summarised(
     tree_capture: Path, tmp_path_factory: pytest.TempPathFactory
 ) -> Iterator[tuple[Service, dict]]:
-    """Six trees of one row measured from the same capture; the last with a region of interest so narrow
-    that its crown is cut (its width far from the others'). The service and the trees' measurements."""
+    """Six trees of one row measured from the same capture; the last without moving its extremes out by
+    half a pixel pitch (``metrics.edge_px`` 0), so its width is a centimetre less than the other five's,
+    which are equal: with five equal values, the sixth stands 5/sqrt(6), about 2.04, sample standard
+    deviations from the mean, whatever the difference. The service and the trees' measurements."""
     service = start_service(tmp_path_factory.mktemp("summaries"))
     service.start_worker()
     folder = tmp_path_factory.mktemp("trees")
@@ -42,7 +44,7 @@ def summarised(
                     json.dumps({**manifest, "orchard": ORCHARD, "row": ROW, "tree": tree})
                 )
                 capture_id = upload_capture(client, copy)
-                config = {"config": {"roi": {"radius_m": 0.7}}} if number == TREES - 1 else None
+                config = {"config": {"metrics": {"edge_px": 0.0}}} if number == TREES - 1 else None
                 job = wait_for_job(
                     client, client.post(f"/v1/captures/{capture_id}/jobs", json=config).headers["location"]
                 )
