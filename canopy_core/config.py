@@ -512,24 +512,35 @@ class MetricsConfig(_Section):
         gt=0.0,
         le=20.0,
         description="A tree point within this many pixels of an edge of its view's depth image is where the "
-        "tree may run out of that image; another view looked beyond it if the point moved this many of the "
-        "first view's pixel pitches out through that edge falls in the other's image. Where none did, the "
+        "tree may run out of that image; another view looked beyond it if the point, moved this many pixels "
+        "beyond that edge, falls this many pixels inside the other's image. Where none did, the "
         "merged measurement is refused (a view's own metrics are marked cut_by_frame). 3 px: the half pixel "
-        "by which the last point sampled lies inside an outline, and the pixel or two by which the flying-"
-        "pixel window and the registration move or drop it.",
+        "by which the last point sampled lies inside an outline, and the pixel or two the flying-pixel "
+        "window (flying_window_px) may drop at a depth edge.",
     )
     frame_hidden_margin_m: float = Field(
         0.1,
         gt=0.0,
+        le=1.0,
         description="A view that does not frame the tree whole looked beyond another's edge only where it "
         "saw there: its depth reads no nearer than that place less this (a leaf layer and the depth noise), "
         "or nothing; nearer, the crown in front hides it.",
     )
     frame_min_points: int = Field(
-        5,
+        3,
         ge=1,
         description="Fewer tree points than this at an image's edge are specks (flying pixels), not a tree "
-        "cut by the frame: more than the top's support (top_support_points + 1).",
+        "cut by the frame: as many as make the top (itself and top_support_points others), so that a top "
+        "the metrics would take is never too few to be a cut.",
+    )
+    frame_up_within_deg: float = Field(
+        60.0,
+        gt=0.0,
+        lt=90.0,
+        description="An image's edge faces up (down) when the image's outward axis across it points within "
+        "this angle, degrees, of the vertical (of straight down): a cut there may make H and D (the crown "
+        "base) read wrong; otherwise it faces sideways (W). An upright camera's top edge, or a portrait "
+        "one's side, whatever its field of view or pitch up to this angle.",
     )
     crown_piece_min_voxels: int = Field(
         5,

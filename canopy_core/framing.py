@@ -27,13 +27,10 @@ _CUT_BY_FACING = {
     "down": ("crown_base_m", "crown_base_kde_m", "thickness_m", "thickness_kde_m"),
     "sideways": ("width_m", "diameter_along_row_m", "diameter_across_row_m"),
 }
-"""The metrics a tree cut by an edge facing each way may read wrong: lengths short, the crown base high;
-its area and volumes short too, whichever the edge."""
-_UP_COMPONENT = 0.5
-"""An edge faces up (down) when the outward normal of the plane through it and the camera points within
-60 degrees of the vertical: an upright camera's top edge (and a portrait one's side), even pitched up 25
-degrees."""
+"""The metrics a tree cut by an edge facing each way may read wrong: lengths short, the crown base high
+(see ``up_within_deg`` of :func:`frame_cuts`)."""
 _CUT_BY_ANY_EDGE = ("projected_area_m2", "volume_hull_m3", "volume_voxel_m3")
+"""The metrics a cut at any edge may make read short: the crown's area and volumes."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -73,13 +70,16 @@ def frame_cuts(
     margin_px: float,
     min_points: int,
     hidden_margin_m: float,
+    up_within_deg: float,
     bottom_masks: Sequence[np.ndarray] | None = None,
 ) -> tuple[FrameCut, ...]:
     """Where the tree runs out of a view's image and no other view looked beyond it.
 
-    Another view looked beyond a point at an edge if the point moved ``margin_px`` of its own view's pixel
-    pitches out through that edge (along the normal of the plane the edge and the camera's centre span)
-    falls inside the other view's image, in front of it and within its depth range, and, unless the other
+    Another view looked beyond a point at an edge if the point, moved out through that edge (along the
+    normal of the plane the edge and the camera's centre span) until it stands about ``margin_px`` of its
+    own view's pixels beyond the edge, falls at least ``margin_px`` inside the other view's image (beyond
+    that view's own edge band, where its points would carry the tree on), in front of it and within its
+    depth range, and, unless the other
     view frames the tree whole (none of its own points at an edge), that view saw there: its depth image
     reads no nearer than the moved point less ``hidden_margin_m`` at its pixel, or reads nothing (sky).
     Where both views are cut, each sees the other's cut stretch across the crown, which hides what stands
@@ -93,12 +93,15 @@ def frame_cuts(
     frames
         What each view's image covers, and what it read.
     margin_px
-        A point within this many pixels of an edge (pixel centres) is at that edge; and how far out it is
-        moved to be looked at by the others.
+        A point within this many pixels of an edge (pixel centres) is at that edge; how far beyond the edge
+        it is moved, and how far inside another view's image it must then fall, to be looked at by it.
     min_points
         Fewer points than this at an edge, unexplained, are specks (a flying pixel), not the tree.
     hidden_margin_m
         A view that reads nearer than the moved point by more than this sees something in front of it.
+    up_within_deg
+        An edge faces up (down) when the image's outward axis across it points within this angle of the
+        vertical (of straight down); otherwise sideways.
     bottom_masks
         Per view, the mask of its points judged at an edge facing down: the crown alone, since a trunk cut
         at its foot changes no metric (H is read from the ground frame). None: every point.
@@ -111,7 +114,11 @@ def frame_cuts(
     """
     at_edges = [
         _edge_probes(
-            points, frame, margin_px=margin_px, bottom=None if bottom_masks is None else bottom_masks[i]
+            points,
+            frame,
+            margin_px=margin_px,
+            up_within_deg=up_within_deg,
+            bottom=None if bottom_masks is None else bottom_masks[i],
         )
         for i, (points, frame) in enumerate(zip(points_by_view, frames, strict=True))
     ]
@@ -125,7 +132,10 @@ def frame_cuts(
             for other, other_whole in zip(frames, whole, strict=True):
                 if other is not frame:
                     looked_beyond |= _inside(
-                        probes, other, hidden_margin_m=None if other_whole else hidden_margin_m
+                        probes,
+                        other,
+                        margin_px=margin_px,
+                        hidden_margin_m=None if other_whole else hidden_margin_m,
                     )
             unexplained = int(np.count_nonzero(~looked_beyond))
             if unexplained >= min_points:
@@ -143,53 +153,72 @@ def cut_metrics(cuts: Sequence[FrameCut]) -> tuple[str, ...]:
 
 
 def _edge_probes(
-    points_m: np.ndarray, frame: ViewFrame, *, margin_px: float, bottom: np.ndarray | None
+    points_m: np.ndarray,
+    frame: ViewFrame,
+    *,
+    margin_px: float,
+    up_within_deg: float,
+    bottom: np.ndarray | None,
 ) -> dict[str, tuple[str, np.ndarray]]:
     """Per edge of the frame's image, which way it faces in the world and its points within ``margin_px``
-    of it (at an edge facing down, only those of ``bottom``), each moved ``margin_px`` of its pixel pitches
-    out through the edge (world frame)."""
+    of it (at an edge facing down, only those of ``bottom``), each moved out through the edge until it
+    stands about ``margin_px`` beyond it (world frame): by its distance inside plus ``margin_px``, in pixel
+    pitches, along the outward normal of the edge's plane (a pitch there moves it a pixel or more across
+    the edge)."""
     intrinsics = frame.intrinsics
     camera_points = apply(invert(frame.world_from_view), points_m)
     columns, rows = project_points(camera_points, intrinsics).T
     last_column, last_row = intrinsics.width - 1, intrinsics.height - 1
-    # Each edge as (distance inside the image in pixels, focal length across it, outward normal of the
-    # plane through the camera's centre and that edge, in the camera's axes).
+    # Each edge as (distance inside the image in pixels, focal length across it, the image's outward axis
+    # across it and the outward normal of the plane through the camera's centre and the edge, both in the
+    # camera's axes).
     edges = {
-        "top": (rows, intrinsics.fy, (0.0, -intrinsics.fy, -intrinsics.cy)),
-        "bottom": (last_row - rows, intrinsics.fy, (0.0, intrinsics.fy, intrinsics.cy - last_row)),
-        "left": (columns, intrinsics.fx, (-intrinsics.fx, 0.0, -intrinsics.cx)),
-        "right": (last_column - columns, intrinsics.fx, (intrinsics.fx, 0.0, intrinsics.cx - last_column)),
+        "top": (rows, intrinsics.fy, (0.0, -1.0, 0.0), (0.0, -intrinsics.fy, -intrinsics.cy)),
+        "bottom": (
+            last_row - rows,
+            intrinsics.fy,
+            (0.0, 1.0, 0.0),
+            (0.0, intrinsics.fy, intrinsics.cy - last_row),
+        ),
+        "left": (columns, intrinsics.fx, (-1.0, 0.0, 0.0), (-intrinsics.fx, 0.0, -intrinsics.cx)),
+        "right": (
+            last_column - columns,
+            intrinsics.fx,
+            (1.0, 0.0, 0.0),
+            (intrinsics.fx, 0.0, intrinsics.cx - last_column),
+        ),
     }
+    rotation = frame.world_from_view[:3, :3]
+    up_component = float(np.cos(np.radians(up_within_deg)))
     probes = {}
-    for edge, (inside_px, focal, normal) in edges.items():
-        outward = frame.world_from_view[:3, :3] @ (np.array(normal) / np.linalg.norm(normal))
-        facing = (
-            "up" if outward[2] >= _UP_COMPONENT else "down" if outward[2] <= -_UP_COMPONENT else "sideways"
-        )
+    for edge, (inside_px, focal, axis, normal) in edges.items():
+        vertical = float((rotation @ np.array(axis))[2])
+        facing = "up" if vertical >= up_component else "down" if vertical <= -up_component else "sideways"
         near = inside_px < margin_px
         if facing == "down" and bottom is not None:
             near &= bottom
-        probes[edge] = (
-            facing,
-            points_m[near] + np.outer(margin_px * camera_points[near, 2] / focal, outward),
-        )
+        outward = rotation @ (np.array(normal) / np.linalg.norm(normal))
+        step_m = (inside_px[near] + margin_px) * camera_points[near, 2] / focal
+        probes[edge] = (facing, points_m[near] + np.outer(step_m, outward))
     return probes
 
 
-def _inside(points_m: np.ndarray, frame: ViewFrame, *, hidden_margin_m: float | None) -> np.ndarray:
-    """Mask of the points that fall inside the frame's image (pixel centres), in front of its camera and
-    no farther than it reads; with ``hidden_margin_m``, only those it saw there: its depth at their pixel
-    reads nothing, or no nearer than they stand less that margin."""
+def _inside(
+    points_m: np.ndarray, frame: ViewFrame, *, margin_px: float, hidden_margin_m: float | None
+) -> np.ndarray:
+    """Mask of the points that fall at least ``margin_px`` inside the frame's image (pixel centres), in
+    front of its camera and no farther than it reads; with ``hidden_margin_m``, only those it saw there: its
+    depth at their pixel reads nothing, or no nearer than they stand less that margin."""
     camera_points = apply(invert(frame.world_from_view), points_m)
     depth = camera_points[:, 2]
     ahead = (depth > 0) & (depth <= frame.max_depth_m)
     pixels = project_points(np.where(ahead[:, None], camera_points, 1.0), frame.intrinsics)
     inside = (
         ahead
-        & (pixels[:, 0] >= 0)
-        & (pixels[:, 0] <= frame.intrinsics.width - 1)
-        & (pixels[:, 1] >= 0)
-        & (pixels[:, 1] <= frame.intrinsics.height - 1)
+        & (pixels[:, 0] >= margin_px)
+        & (pixels[:, 0] <= frame.intrinsics.width - 1 - margin_px)
+        & (pixels[:, 1] >= margin_px)
+        & (pixels[:, 1] <= frame.intrinsics.height - 1 - margin_px)
     )
     if hidden_margin_m is None:
         return inside

@@ -481,6 +481,7 @@ def _frame_cuts(
         margin_px=config.metrics.frame_margin_px,
         min_points=config.metrics.frame_min_points,
         hidden_margin_m=config.metrics.frame_hidden_margin_m,
+        up_within_deg=config.metrics.frame_up_within_deg,
         bottom_masks=kept_crown,
     )
 
@@ -512,8 +513,8 @@ def _refuse_cut_off(cuts: tuple[FrameCut, ...], kept: np.ndarray, config: Measur
     if np.count_nonzero(np.linalg.norm(kept[:, :2], axis=1) >= config.roi.radius_m - near_m) >= enough:
         raise MeasurementError(
             f"the tree reaches the region of interest's wall, {config.roi.radius_m:g} m from its axis (the "
-            "trunk's): it may go on beyond (a crown wider than the region, or joined to a neighbour's), so "
-            "width_m would read the region's width",
+            "trunk's, or the balls' centre where no trunk was found): it may go on beyond (a crown wider "
+            "than the region, or joined to a neighbour's), so width_m would read the region's width",
             field="roi.radius_m",
             hint="for a crown that wide, raise roi.radius_m; a crown grown into its neighbours' cannot be "
             "measured alone",
