@@ -20,7 +20,7 @@ from canopy_core.backproject import project_points
 from canopy_core.capture import Intrinsics
 from canopy_core.register import apply, invert
 
-__all__ = ["FrameCut", "ViewFrame", "cut_metrics", "frame_cuts"]
+__all__ = ["FrameCut", "FrameCuts", "ViewFrame", "cut_metrics", "frame_cuts"]
 
 _CUT_BY_FACING = {
     "up": ("height_m", "thickness_m", "thickness_kde_m"),
@@ -63,6 +63,16 @@ class FrameCut:
         return f"{self.view}'s {self.edge} edge ({self.points} points)"
 
 
+@dataclass(frozen=True)
+class FrameCuts:
+    """Where the tree runs out of the views' images: ``across_views``, the cuts no other view looked beyond
+    (the merged measurement's); ``by_view``, per view, every edge its own image cuts the tree at (its own
+    metrics', judged as if it were alone)."""
+
+    across_views: tuple[FrameCut, ...]
+    by_view: tuple[tuple[FrameCut, ...], ...]
+
+
 def frame_cuts(
     points_by_view: Sequence[np.ndarray],
     frames: Sequence[ViewFrame],
@@ -72,8 +82,8 @@ def frame_cuts(
     hidden_margin_m: float,
     up_within_deg: float,
     bottom_masks: Sequence[np.ndarray] | None = None,
-) -> tuple[FrameCut, ...]:
-    """Where the tree runs out of a view's image and no other view looked beyond it.
+) -> FrameCuts:
+    """Where the tree runs out of a view's image, and where no other view looked beyond it.
 
     Another view looked beyond a point at an edge if the point, moved out through that edge (along the
     normal of the plane the edge and the camera's centre span) until it stands about ``margin_px`` of its
@@ -108,9 +118,10 @@ def frame_cuts(
 
     Returns
     -------
-    tuple of FrameCut
-        One per view and edge where at least ``min_points`` points are cut; empty when every view frames
-        the tree, or another view looked beyond wherever one does not.
+    FrameCuts
+        Across the views, one cut per view and edge where at least ``min_points`` points are looked beyond
+        by no other view (none when every view frames the tree, or another view looked beyond wherever one
+        does not); and per view, one per edge where at least ``min_points`` points are at it.
     """
     at_edges = [
         _edge_probes(
@@ -122,25 +133,32 @@ def frame_cuts(
         )
         for i, (points, frame) in enumerate(zip(points_by_view, frames, strict=True))
     ]
-    whole = [all(probes.shape[0] < min_points for _, probes in edges.values()) for edges in at_edges]
+    by_view = tuple(
+        tuple(
+            FrameCut(view=frame.name, edge=edge, facing=facing, points=probes.shape[0])
+            for edge, (facing, probes) in edges.items()
+            if probes.shape[0] >= min_points
+        )
+        for frame, edges in zip(frames, at_edges, strict=True)
+    )
     cuts = []
     for index, frame in enumerate(frames):
         for edge, (facing, probes) in at_edges[index].items():
             if probes.shape[0] < min_points:
                 continue
             looked_beyond = np.zeros(probes.shape[0], dtype=bool)
-            for other, other_whole in zip(frames, whole, strict=True):
+            for other, other_cuts in zip(frames, by_view, strict=True):
                 if other is not frame:
                     looked_beyond |= _inside(
                         probes,
                         other,
                         margin_px=margin_px,
-                        hidden_margin_m=None if other_whole else hidden_margin_m,
+                        hidden_margin_m=hidden_margin_m if other_cuts else None,
                     )
             unexplained = int(np.count_nonzero(~looked_beyond))
             if unexplained >= min_points:
                 cuts.append(FrameCut(view=frame.name, edge=edge, facing=facing, points=unexplained))
-    return tuple(cuts)
+    return FrameCuts(across_views=tuple(cuts), by_view=by_view)
 
 
 def cut_metrics(cuts: Sequence[FrameCut]) -> tuple[str, ...]:

@@ -435,27 +435,34 @@ def _modes(
     offsets = np.cumsum([view_points.shape[0] for view_points in points])[:-1]
     crowns = np.split(crown, offsets)
     measured = measured_points(merged, trunk, crown=crown, foliage=merged_foliage, config=config.metrics)
-    kept = [view_points[mask] for view_points, mask in zip(points, np.split(measured, offsets), strict=True)]
-    kept_crown = [
-        mask[kept_mask] for mask, kept_mask in zip(crowns, np.split(measured, offsets), strict=True)
-    ]
+    measured_by_view = np.split(measured, offsets)
+    kept = [view_points[mask] for view_points, mask in zip(points, measured_by_view, strict=True)]
+    kept_crown = [mask[kept_mask] for mask, kept_mask in zip(crowns, measured_by_view, strict=True)]
     frames = [
         ViewFrame(
             view.name, view.camera.depth, pose, max_depth_m=config.filters.max_depth_m, depth_m=view.depth_m
         )
         for view, pose in zip(capture.views, world_from_view, strict=True)
     ]
-    _refuse_cut_off(_frame_cuts(kept, kept_crown, frames, config), np.concatenate(kept), config)
+    cuts = frame_cuts(
+        kept,
+        frames,
+        margin_px=config.metrics.frame_margin_px,
+        min_points=config.metrics.frame_min_points,
+        hidden_margin_m=config.metrics.frame_hidden_margin_m,
+        up_within_deg=config.metrics.frame_up_within_deg,
+        bottom_masks=kept_crown,
+    )
+    _refuse_cut_off(cuts.across_views, np.concatenate(kept), config)
     modes: dict[str, CanopyMetrics] = {}
-    for index, (view, view_points, leafy, view_crown, footprint) in enumerate(
-        zip(capture.views, points, foliage, crowns, footprints, strict=True)
+    for view, view_points, leafy, view_crown, footprint, own_cuts in zip(
+        capture.views, points, foliage, crowns, footprints, cuts.by_view, strict=True
     ):
-        cuts = _frame_cuts([kept[index]], [kept_crown[index]], [frames[index]], config)
         modes[view.name] = replace(
             _metrics_or_fail(
                 view_points, leafy, view_crown, footprint, trunk, config, view=view.name, single_view=True
             ),
-            cut_by_frame=cut_metrics(cuts),
+            cut_by_frame=cut_metrics(own_cuts),
         )
     modes[MERGED] = _metrics_or_fail(
         merged,
@@ -468,22 +475,6 @@ def _modes(
         single_view=len(capture.views) == 1,
     )
     return modes, measured
-
-
-def _frame_cuts(
-    kept: list[np.ndarray], kept_crown: list[np.ndarray], frames: list[ViewFrame], config: MeasureConfig
-) -> tuple[FrameCut, ...]:
-    """:func:`frame_cuts` of the views' measured points (``kept``), the bottom edge judged on their crown
-    (``kept_crown``: per view, the mask of its measured points that are crown)."""
-    return frame_cuts(
-        kept,
-        frames,
-        margin_px=config.metrics.frame_margin_px,
-        min_points=config.metrics.frame_min_points,
-        hidden_margin_m=config.metrics.frame_hidden_margin_m,
-        up_within_deg=config.metrics.frame_up_within_deg,
-        bottom_masks=kept_crown,
-    )
 
 
 def _refuse_cut_off(cuts: tuple[FrameCut, ...], kept: np.ndarray, config: MeasureConfig) -> None:

@@ -92,7 +92,7 @@ def _cuts(views: list[tuple[ViewFrame, np.ndarray]], *, min_points: int = 5) -> 
         hidden_margin_m=0.1,
         up_within_deg=60.0,
     )
-    return {(cut.view, cut.edge) for cut in found}
+    return {(cut.view, cut.edge) for cut in found.across_views}
 
 
 def test_a_crown_inside_every_frame_is_not_cut() -> None:
@@ -114,7 +114,7 @@ def test_a_crown_above_both_frames_is_cut_at_their_top_edges() -> None:
         hidden_margin_m=0.1,
         up_within_deg=60.0,
     )
-    assert "height_m" in cut_metrics(found) and "width_m" not in cut_metrics(found)
+    assert "height_m" in cut_metrics(found.across_views) and "width_m" not in cut_metrics(found.across_views)
 
 
 def test_a_view_that_frames_the_whole_tree_looks_beyond_where_another_is_cut() -> None:
@@ -125,6 +125,16 @@ def test_a_view_that_frames_the_whole_tree_looks_beyond_where_another_is_cut() -
     framing_view = _view(crown, "views/2", 1.0, distance_m=4.5, pitch_deg=12.0)
     assert _cuts([cut_view]) == {("views/1", "top")}
     assert _cuts([cut_view, framing_view]) == set()
+    # Each view's own cuts, judged as if it were alone: views/1's top edge still cuts its own metrics.
+    together = frame_cuts(
+        [cut_view[1], framing_view[1]],
+        [cut_view[0], framing_view[0]],
+        margin_px=3.0,
+        min_points=5,
+        hidden_margin_m=0.1,
+        up_within_deg=60.0,
+    )
+    assert [[(cut.edge, cut.facing) for cut in cuts] for cuts in together.by_view] == [[("top", "up")], []]
 
 
 def test_two_views_cut_on_their_near_shoulders_do_not_excuse_each_other_behind_the_crown() -> None:
@@ -168,7 +178,7 @@ def test_a_few_specks_at_the_edge_are_not_a_cut() -> None:
         min_points=4,
         hidden_margin_m=0.1,
         up_within_deg=60.0,
-    ) == (FrameCut("views/1", "top", "up", 4),)
+    ).across_views == (FrameCut("views/1", "top", "up", 4),)
 
 
 def test_a_trunk_cut_at_the_bottom_edge_is_judged_on_the_crown_alone() -> None:
@@ -187,7 +197,7 @@ def test_a_trunk_cut_at_the_bottom_edge_is_judged_on_the_crown_alone() -> None:
             hidden_margin_m=0.1,
             up_within_deg=60.0,
             bottom_masks=[crown_mask],
-        )
+        ).across_views
         == ()
     )
 
@@ -211,7 +221,7 @@ def test_a_crown_wider_than_the_frame_is_cut_at_its_sides(edge: str) -> None:
     found = frame_cuts(
         [view[1]], [view[0]], margin_px=3.0, min_points=5, hidden_margin_m=0.1, up_within_deg=60.0
     )
-    assert "width_m" in cut_metrics(found) and "height_m" not in cut_metrics(found)
+    assert "width_m" in cut_metrics(found.across_views) and "height_m" not in cut_metrics(found.across_views)
 
 
 def test_a_camera_held_in_portrait_is_cut_at_the_image_side_that_faces_up() -> None:
@@ -222,8 +232,8 @@ def test_a_camera_held_in_portrait_is_cut_at_the_image_side_that_faces_up() -> N
     found = frame_cuts(
         [view[1]], [view[0]], margin_px=3.0, min_points=5, hidden_margin_m=0.1, up_within_deg=60.0
     )
-    assert [(cut.edge, cut.facing) for cut in found] == [("left", "up")]
-    assert "height_m" in cut_metrics(found) and "width_m" not in cut_metrics(found)
+    assert [(cut.edge, cut.facing) for cut in found.across_views] == [("left", "up")]
+    assert "height_m" in cut_metrics(found.across_views) and "width_m" not in cut_metrics(found.across_views)
 
 
 def test_two_views_cut_at_the_same_height_do_not_excuse_each_other_by_a_sliver() -> None:
