@@ -17,6 +17,7 @@ tape and pole, a different kind of number.
     .venv/bin/python bench/accuracy.py --scenario mixed --slope-deg 6  # a hillside orchard
     .venv/bin/python bench/accuracy.py --scenario mixed --lean-deg 8  # trees leaning from their foot
     .venv/bin/python bench/accuracy.py --scenario mixed --stake  # a support stake beside every trunk
+    .venv/bin/python bench/accuracy.py --scenario mixed --near-posts  # trellis posts within the crowns' reach
     .venv/bin/python bench/accuracy.py --scenario mixed --pitch-deg 0  # cameras held level: trees cut off
 """
 
@@ -184,6 +185,11 @@ def main() -> None:
         help="Every camera is held this many degrees up from level, framing the tree or not (default: "
         "aimed to frame it); the trees no view frames whole are counted apart.",
     )
+    parser.add_argument(
+        "--near-posts",
+        action="store_true",
+        help="A trellis post on each side of every tree 0.5-1.4 m from its trunk, within the crown's reach.",
+    )
     parser.add_argument("--details", action="store_true", help="Print every tree's errors and failures.")
     options = parser.parse_args()
     scenarios = [s.value for s in Scenario] if options.scenario == "all" else [options.scenario]
@@ -196,6 +202,7 @@ def main() -> None:
         )
         + ("" if options.lean_deg is None else f", trees leaning {options.lean_deg:g} degrees")
         + (", a stake beside every trunk" if options.stake else "")
+        + (", posts within every crown's reach" if options.near_posts else "")
         + ("" if options.pitch_deg is None else f", cameras held {options.pitch_deg:g} degrees up")
         + f", seeds {options.seed * 1000} to {options.seed * 1000 + options.count - 1}"
     )
@@ -208,6 +215,7 @@ def main() -> None:
                 "lean_deg": options.lean_deg,
                 "stake": options.stake,
                 "pitch_deg": options.pitch_deg,
+                "near_posts": options.near_posts,
             }
             work = [
                 (Path(scratch) / f"tree_{i:03d}", options.seed * 1000 + i, scenario, simulated)

@@ -196,6 +196,14 @@ def simulate(
             "camera is aimed to frame the whole tree."
         ),
     ] = None,
+    near_posts: Annotated[
+        bool,
+        typer.Option(
+            help="Stand a trellis post on each side of every tree 0.5-1.4 m from its trunk, within the "
+            "crown's reach (2.0-3.8 m tall, or the trellis's height), as rows with posts between trees a "
+            "metre or two apart have. Default: posts stand at least 1.6 m from the trunk."
+        ),
+    ] = False,
 ) -> None:
     """Write synthetic captures of procedural apple trees, each with its ground_truth.json."""
     require_extra("sim", "simulate")
@@ -221,6 +229,7 @@ def simulate(
             lean_deg=lean_deg,
             stake=stake,
             pitch_deg=pitch_deg,
+            near_posts=near_posts,
         )
     except (FileExistsError, ValueError) as exc:
         typer.echo(f"error: {exc}", err=True)

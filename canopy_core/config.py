@@ -21,6 +21,7 @@ __all__ = [
     "IcpConfig",
     "MeasureConfig",
     "MetricsConfig",
+    "PoleConfig",
     "RoiConfig",
     "WireConfig",
 ]
@@ -275,6 +276,78 @@ class WireConfig(_Section):
         "ground frame are searched for wires: above the floor's tilt over scene_radius_m (16 cm at 3 degrees "
         "and 3 m) and its scan lines, which a far, grazing view shows as level lines; below the lowest wire "
         "of a trellis (0.4-0.8 m).",
+    )
+
+
+class PoleConfig(_Section):
+    """Trellis posts and other poles standing beside the tree (``poles.py``), found by their shape: each thin
+    horizontal slab of a pole in open air is a compact group with nothing near it, in one straight line
+    down to the ground."""
+
+    cell_m: float = Field(
+        0.02,
+        gt=0.0,
+        le=0.1,
+        description="Grid cell on which a slab's points are grouped: about two depth pixels at 4 m (a Kinect "
+        "v2 pixel covers 11 mm there).",
+    )
+    slab_m: float = Field(
+        0.05,
+        gt=0.0,
+        le=0.5,
+        description="Height of the horizontal slabs a pole is seen in, slab after slab.",
+    )
+    isolation_m: float = Field(
+        0.08,
+        gt=0.0,
+        le=0.5,
+        description="A slab of a pole standing in open air has nothing nearer it than about this: groups of "
+        "a slab closer together are one group. Leaves in a crown stand a few centimetres apart, so a post "
+        "inside the crown shows no group of its own there.",
+    )
+    max_radius_m: float = Field(
+        0.12,
+        gt=0.0,
+        le=0.5,
+        description="The thickest pole sought: a slab of it lies within this of its group's centre. Trellis "
+        "posts are 5-20 cm thick (wood 8-15 cm, concrete 10-12 cm, steel 5-8 cm); support stakes 2 cm.",
+    )
+    tolerance_m: float = Field(
+        0.02,
+        gt=0.0,
+        le=0.2,
+        description="How far a pole's slab centres stand from its straight line (RMS), and the margin round "
+        "the surface its groups show within which points are the pole's: the depth noise at 4 m in sun "
+        "(about 1.3 cm), the views' registration (a few mm) and one view's side of the pole against both.",
+    )
+    min_length_m: float = Field(
+        0.4,
+        gt=0.0,
+        description="A pole shows in open air, compact and straight, over at least this height: longer than "
+        "a weed's or a sucker's straight stretch, and shorter than the bare stretch between the ground's "
+        "grass and a tree's lowest leaves that a post stands in.",
+    )
+    max_lean_deg: float = Field(
+        10.0,
+        ge=0.0,
+        lt=45.0,
+        description="A pole leans at most this far from the ground frame's vertical: line posts are set "
+        "plumb, and the frame may tilt a few degrees against gravity.",
+    )
+    max_gap_m: float = Field(
+        0.3,
+        ge=0.0,
+        le=2.0,
+        description="A pole is followed down and up its line through spans where nothing is seen on it up to "
+        "this long: hidden behind leaves, tall grass or the trunk from both views.",
+    )
+    min_trunk_gap_m: float = Field(
+        0.1,
+        ge=0.0,
+        le=1.0,
+        description="A pole's axis stands at least this far outside the trunk's bark at its foot: nearer, "
+        "its line cannot be told from the trunk's own outline and the suckers at its foot, and it is not "
+        "sought (a support stake tied to the trunk is not found as a pole).",
     )
 
 
@@ -601,6 +674,7 @@ class MeasureConfig(_Section):
     balls: BallConfig = Field(default_factory=BallConfig)
     roi: RoiConfig = Field(default_factory=RoiConfig)
     wires: WireConfig = Field(default_factory=WireConfig)
+    poles: PoleConfig = Field(default_factory=PoleConfig)
     filters: FilterConfig = Field(default_factory=FilterConfig)
     ground: GroundConfig = Field(default_factory=GroundConfig)
     icp: IcpConfig = Field(default_factory=IcpConfig)

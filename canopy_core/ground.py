@@ -54,6 +54,13 @@ _TRUNK_MIN_POINTS = 20
 """A trunk's slice (or the arc found in it) holds at least this many points."""
 _TRUNK_SCORED_POINTS = 4000
 """Each circle is scored on at most this many points of the slice, drawn at random."""
+_RIVAL_SHARE = 0.5
+"""A circle standing apart from the best-supported one (farther than a trunk's largest diameter) with at
+least this share of its bark is a rival upright: a trellis post near the trunk is as round and as well seen
+as the trunk, and may be better seen. Of such rivals the trunk is the one the crown stands over."""
+_CROWN_ABOVE_M = 2 * TRUNK_SLICE_M[1]
+"""Points higher than this in the frame are the crown's, and whatever stands in it, when the trunk is told
+from rival uprights by what stands over it: above the trunk's slice, twice as high."""
 _MAX_VIEW_TILT_DEG = 45.0
 """A view's ground is within this of the camera's up: crews hold the camera roughly level."""
 _MIN_VIEW_GROUND_SHARE = 0.05
@@ -356,7 +363,8 @@ def _trunk_position(
     if np.count_nonzero(in_slice) < _TRUNK_MIN_POINTS:
         return np.zeros(2), 0, None
     xy = world[in_slice, :2]
-    found = _bark_circle(xy)
+    over = world[:, 2] > _CROWN_ABOVE_M
+    found = _bark_circle(xy, toward_xy=np.median(world[over, :2], axis=0) if over.any() else None)
     if found is None:
         return np.median(xy, axis=0), int(xy.shape[0]), None
     centre, radius, on_arc = found
@@ -416,20 +424,28 @@ def _trunk_slice(
     return (points_m[in_slice] - ground.point_m) @ axes, axes
 
 
-def _bark_circle(xy: np.ndarray) -> tuple[np.ndarray, float, int] | None:
+def _bark_circle(
+    xy: np.ndarray, *, toward_xy: np.ndarray | None = None
+) -> tuple[np.ndarray, float, int] | None:
     """The centre and radius of the trunk-sized circle that the most of ``(N, 2)`` slice points lie on with
     nothing inside it, refitted on its arc, and how many points lie on that arc; None when no three nearby
-    points make a circle of a trunk's size."""
+    points make a circle of a trunk's size. With ``toward_xy`` (the middle of the crown), of that circle
+    and its rivals (``_RIVAL_SHARE``) the one nearest it."""
     rng = np.random.default_rng(0)
     scored = xy[rng.permutation(xy.shape[0])[:_TRUNK_SCORED_POINTS]]
     centres, radii = _trunk_circles(scored, rng)
     if centres.shape[0] == 0:
         return None
-    best = int(
-        np.argmax(
-            [_bark_support(scored, centre, radius) for centre, radius in zip(centres, radii, strict=True)]
-        )
+    support = np.array(
+        [_bark_support(scored, centre, radius) for centre, radius in zip(centres, radii, strict=True)]
     )
+    best = int(np.argmax(support))
+    if toward_xy is not None:
+        apart = np.linalg.norm(centres - centres[best], axis=1) > 2 * TRUNK_RADIUS_RANGE_M[1]
+        contenders = np.flatnonzero(
+            (apart & (support >= _RIVAL_SHARE * support[best])) | (support == support[best])
+        )
+        best = int(contenders[np.argmin(np.linalg.norm(centres[contenders] - toward_xy, axis=1))])
     on_arc = xy[np.abs(np.linalg.norm(xy - centres[best], axis=1) - radii[best]) < _TRUNK_TOLERANCE_M]
     return *fit_circle(on_arc), int(on_arc.shape[0])
 

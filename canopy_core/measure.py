@@ -44,6 +44,7 @@ from canopy_core.metrics import (
     crown_mask,
     measured_points,
 )
+from canopy_core.poles import find_poles, pole_mask
 from canopy_core.refine import IcpRefinement
 from canopy_core.register import apply
 from canopy_core.segment import find_wires, tree_component, wire_mask
@@ -286,6 +287,7 @@ def measure(
         [pose[:3, 3] for pose in world_from_view],
         apply(ground.world_from_reference, centres[0]),
         trunk_xy,
+        ground.trunk_radius_m,
         config,
     )
     modes, measured = _modes(
@@ -535,6 +537,7 @@ def _tree_masks(
     cameras_m: list[np.ndarray],
     balls_world: np.ndarray,
     trunk_xy: np.ndarray,
+    trunk_radius_m: float | None,
     config: MeasureConfig,
 ) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """Per view, the points of the tree: above the local ground's clearance, off the balls, off the trellis
@@ -584,6 +587,18 @@ def _tree_masks(
             for points, camera in zip(per_view, cameras_m, strict=True)
         ]
     )
+    if trunk_radius_m is not None:
+        off_wires[off_wires] = ~pole_mask(
+            candidates[off_wires],
+            find_poles(
+                candidates[off_wires],
+                ground_map.height_above(candidates[off_wires]),
+                trunk_xy_m=trunk_xy,
+                trunk_radius_m=trunk_radius_m,
+                foot_below_m=config.metrics.crown_piece_min_bottom_m,
+                config=config.poles,
+            ),
+        )
     connected = np.zeros(candidates.shape[0], dtype=bool)
     connected[off_wires] = tree_component(
         candidates[off_wires], trunk_xy, roi_radius_m=config.roi.radius_m, link_m=config.roi.link_m

@@ -174,14 +174,16 @@ def plan_scenario(scenario: Scenario, rng: np.random.Generator) -> ScenarioPlan:
     )
 
 
-def dress_orchard(orchard: Orchard, plan: ScenarioPlan, streams: ScenarioStreams) -> Dressing:
+def dress_orchard(
+    orchard: Orchard, plan: ScenarioPlan, streams: ScenarioStreams, *, near_posts: bool = False
+) -> Dressing:
     """Add ``plan``'s elements to ``orchard`` (built without posts when the plan has wires: the trellis
-    brings its own)."""
+    brings its own, within the crown's reach with ``near_posts``)."""
     palette, ground_colors = (
         random_palette(streams.palette, orchard.ground) if plan.ground_palette else (None, None)
     )
     leaves = fallen_leaves(streams.leaves, orchard.ground) if plan.fallen_leaves else None
-    trellis = build_trellis(streams.wires, orchard) if plan.wires else None
+    trellis = build_trellis(streams.wires, orchard, near_posts=near_posts) if plan.wires else None
     weeds = grow_weeds(streams.weeds, orchard.ground, orchard.main_tree) if plan.weeds else None
     extras: list[Mesh] = [part.mesh for part in (trellis, weeds) if part is not None]
     if leaves is not None:

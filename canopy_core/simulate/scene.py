@@ -43,6 +43,12 @@ _GAP_MARGIN_M = 0.05
 _POST_MIN_DISTANCE_M = 1.6
 _POST_CHANCE = 0.7
 _POST_HEIGHT_M = (2.1, 2.3)
+_NEAR_POST_DISTANCE_M = (0.5, 1.4)
+"""With ``near_posts``, how far from the main trunk (along x) a post stands: within the crown's reach, as
+in rows whose posts stand between trees planted a metre or two apart, or in the tree line beside one."""
+_NEAR_POST_HEIGHT_M = (2.0, 3.8)
+"""With ``near_posts`` and no trellis, a post's height: below the crown's top or above it (line posts of a
+tall-spindle orchard stand 3-4 m)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -112,23 +118,28 @@ def trellis_post(
     return mesh, (x, y, ground_z)
 
 
-def post_span_m(neighbour: Tree) -> tuple[float, float]:
-    """How far from the main trunk (along x) a post may stand on the side of ``neighbour``."""
-    return _POST_MIN_DISTANCE_M, min(2.4, abs(float(neighbour.base[0])) - 0.8)
+def post_span_m(neighbour: Tree, *, near: bool = False) -> tuple[float, float]:
+    """How far from the main trunk (along x) a post may stand on the side of ``neighbour``: beyond the
+    crown's reach, or (``near``) within it."""
+    low, high = _NEAR_POST_DISTANCE_M if near else (_POST_MIN_DISTANCE_M, 2.4)
+    return low, min(high, abs(float(neighbour.base[0])) - 0.8)
 
 
 def build_orchard(
     rng: np.random.Generator,
     *,
     posts: bool = True,
+    near_posts: bool = False,
     slope_deg: float | None = None,
     foot_lean_per_m: tuple[float, float] = (0.0, 0.0),
 ) -> Orchard:
     """Draw a stretch of orchard row: ground (level, or of ``slope_deg``: see :func:`random_ground`), the
     main tree at the origin, leaning from its foot by ``foot_lean_per_m`` (see ``TreeShape``), a
     neighbour on each side 3-4 m away along x, and (if ``posts``; a trellis with wires brings its own)
-    trellis posts between them at least 1.6 m from the main trunk. Posts and neighbours stand upright
-    whatever the slope, and so does the main tree unless told to lean."""
+    trellis posts between them at least 1.6 m from the main trunk (``near_posts``: one on each side, 0.5-1.4 m
+    from it and 2.0-3.8 m tall, within the crown's reach). Posts and neighbours stand upright whatever the
+    slope, and so does the main tree unless told to lean. ``near_posts`` draws as many numbers as without:
+    the same seed grows the same trees."""
     ground = random_ground(rng, slope_deg=slope_deg)
     shape = replace(random_tree_shape(rng), foot_lean_per_m=foot_lean_per_m)
     main_tree = build_tree(shape, rng, base=np.zeros(3))
@@ -136,8 +147,15 @@ def build_orchard(
     neighbours = tuple(_neighbour(rng, ground, main_points, side) for side in (-1, 1))
     post_meshes: list[tuple[Mesh, tuple[float, float, float]]] = []
     for side, neighbour in zip((-1, 1), neighbours, strict=True):
-        if posts and rng.random() < _POST_CHANCE:
-            post_meshes.append(trellis_post(rng, ground, side * rng.uniform(*post_span_m(neighbour))))
+        if posts and (rng.random() < _POST_CHANCE or near_posts):
+            post_meshes.append(
+                trellis_post(
+                    rng,
+                    ground,
+                    side * rng.uniform(*post_span_m(neighbour, near=near_posts)),
+                    height_m=_NEAR_POST_HEIGHT_M if near_posts else _POST_HEIGHT_M,
+                )
+            )
     return Orchard(
         ground=ground,
         main_tree=main_tree,

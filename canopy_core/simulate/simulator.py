@@ -72,6 +72,7 @@ def _simulate(
     lean_deg: float | None,
     stake: bool,
     pitch_deg: float | None,
+    near_posts: bool,
 ) -> Path:
     check_empty(out_dir)
     # The first six streams are the plain scene's, as they always were; the seventh is the scenario's, the
@@ -87,6 +88,7 @@ def _simulate(
         build_orchard(
             orchard_rng,
             posts=not plan.wires,
+            near_posts=near_posts,
             slope_deg=slope_deg,
             foot_lean_per_m=(0.0, 0.0)
             if lean_deg is None
@@ -94,6 +96,7 @@ def _simulate(
         ),
         plan,
         scenario_streams,
+        near_posts=near_posts,
     )
     orchard = dressing.orchard
     support = (
@@ -227,6 +230,7 @@ def simulate_capture(
     lean_deg: float | None = None,
     stake: bool = False,
     pitch_deg: float | None = None,
+    near_posts: bool = False,
 ) -> Path:
     """Write one synthetic RGB-D capture of a simulated apple tree, with its ``ground_truth.json``.
 
@@ -267,6 +271,10 @@ def simulate_capture(
         Hold every camera this many degrees up from level (within 1 degree; negative: down), as a crew that
         does not aim it at the tree: the tree may run out of the image (the balls never do). None: each
         camera is aimed to frame the whole tree, as every family's default.
+    near_posts
+        Stand a trellis post on each side of the tree 0.5-1.4 m from its trunk, within the crown's reach
+        (2.0-3.8 m tall, or as tall as the trellis's), instead of beyond it: the crown may grow round a
+        post, which is not the tree's. The same seed grows the same tree.
 
     Returns
     -------
@@ -297,6 +305,7 @@ def simulate_capture(
         lean_deg=lean_deg,
         stake=stake,
         pitch_deg=pitch_deg,
+        near_posts=near_posts,
     )
 
 
@@ -312,6 +321,7 @@ def simulate_captures(
     lean_deg: float | None = None,
     stake: bool = False,
     pitch_deg: float | None = None,
+    near_posts: bool = False,
 ) -> list[Path]:
     """Write ``count`` synthetic captures ``out/tree_000``, ``out/tree_001``, ... of different trees.
 
@@ -342,6 +352,8 @@ def simulate_captures(
         Stand a support stake beside every tree's trunk (see :func:`simulate_capture`).
     pitch_deg
         Every camera's pitch (see :func:`simulate_capture`); None: aimed to frame the tree.
+    near_posts
+        Trellis posts within every crown's reach (see :func:`simulate_capture`).
 
     Returns
     -------
@@ -379,6 +391,7 @@ def simulate_captures(
                     lean_deg=lean_deg,
                     stake=stake,
                     pitch_deg=pitch_deg,
+                    near_posts=near_posts,
                 )
             )
         except NoLayout as exc:

@@ -84,16 +84,18 @@ def wire_height_m(wire: Wire, x: np.ndarray) -> np.ndarray:
     return wire.height_m + wire.rise_per_m * x - sag
 
 
-def build_trellis(rng: np.random.Generator, orchard: Orchard) -> Trellis:
-    """Draw 2-5 wires along the row through ``orchard``'s main tree, with their posts."""
+def build_trellis(rng: np.random.Generator, orchard: Orchard, *, near_posts: bool = False) -> Trellis:
+    """Draw 2-5 wires along the row through ``orchard``'s main tree, with their posts (``near_posts``: a
+    line post on each side within the crown's reach, as
+    :func:`~canopy_core.simulate.scene.build_orchard` stands them)."""
     ground: Ground = orchard.ground
     crown_top_z = float(orchard.main_tree.mesh.vertices[:, 2].max())
     heights = _heights(rng, int(rng.integers(_WIRES[0], _WIRES[1] + 1)), crown_top_z)
     post_height = (heights[-1] + _POST_ABOVE_WIRE_M[0], heights[-1] + _POST_ABOVE_WIRE_M[1])
     posts_x = [side * rng.uniform(*_END_POST_X_M) for side in (-1, 1)]
     for side, neighbour in zip((-1, 1), orchard.neighbours, strict=True):
-        if rng.random() < _LINE_POST_CHANCE:
-            posts_x.append(side * rng.uniform(*post_span_m(neighbour)))
+        if rng.random() < _LINE_POST_CHANCE or near_posts:
+            posts_x.append(side * rng.uniform(*post_span_m(neighbour, near=near_posts)))
     posts = [trellis_post(rng, ground, float(x), height_m=post_height) for x in posts_x]
     supports_x = np.sort(np.array(posts_x))
     x = np.linspace(supports_x[0], supports_x[-1], int(np.ptp(supports_x) / _WIRE_STEP_M) + 1)

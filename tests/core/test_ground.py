@@ -208,3 +208,23 @@ def test_balls_laid_out_in_the_open_away_from_any_trunk_find_no_trunk_and_are_re
     points_world, balls_world, _ = _scene(rng)
     frame, _ = _fitted_frame(points_world, balls_world)
     assert frame.trunk_points > 0 and no_trunk_round_balls(frame) is None
+
+
+def test_the_trunk_is_the_upright_the_crown_stands_over_not_a_better_seen_post_beside_it() -> None:
+    """A trellis post 0.55 m from the trunk, inside the search round the balls, seen all round where the
+    trunk shows the camera only its front: the post's circle holds more bark, but the crown stands over
+    the trunk."""
+    rng = np.random.default_rng(2)
+    points_world, balls_world, trunk_xy = _scene(rng)
+    on_trunk = np.abs(np.linalg.norm(points_world[:, :2] - trunk_xy, axis=1) - 0.07) < 1e-9
+    front = points_world[:, 1] < trunk_xy[1] - 0.07 * np.sin(np.pi / 6)
+    post_xy = trunk_xy + np.array([-0.55, 0.0])
+    angle = rng.uniform(0, 2 * np.pi, 6000)
+    post = np.column_stack(
+        [post_xy[0] + 0.05 * np.cos(angle), post_xy[1] + 0.05 * np.sin(angle), rng.uniform(0, 2.8, 6000)]
+    )
+    scene = np.vstack([points_world[~on_trunk | front], post])
+    frame, recovered_from_world = _fitted_frame(scene, balls_world)
+    trunk_foot = apply(recovered_from_world, np.array([[trunk_xy[0], trunk_xy[1], 0.0]]))[0]
+    assert frame.trunk_radius_m == pytest.approx(0.07, abs=0.01)
+    assert np.linalg.norm(np.array(frame.trunk_xy_m) - trunk_foot[:2]) < 0.02

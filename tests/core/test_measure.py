@@ -705,6 +705,26 @@ def test_a_stake_standing_above_the_crown_fails_clearly_instead_of_raising_h(tmp
     assert allowed.modes["merged"].height_m > truth["height_m"] + 0.25  # what it measured before
 
 
+@pytest.mark.parametrize(
+    ("seed", "was"),
+    [
+        (2112018, "posts 0.62 m and 1.12 m from the trunk in the crown: D +49 % (base 0.36 m for 1.16 m)"),
+        (2112003, "a post better seen than the trunk taken for it, the other post's top for H: +0.6 m"),
+    ],
+)
+def test_trellis_posts_the_crown_has_grown_round_are_not_measured_as_tree(
+    tmp_path: Path, seed: int, was: str
+) -> None:
+    capture = simulate_capture(tmp_path / "tree", seed=seed, scenario="mixed", near_posts=True)
+    truth = json.loads((capture / "ground_truth.json").read_text())
+    assert sum(np.hypot(x, y) < 1.5 for x, y, _ in truth["posts"]) == 2  # both inside the region
+
+    merged = measure(capture).modes["merged"]
+
+    for name in ("height_m", "width_m", "thickness_m"):
+        assert getattr(merged, name) == pytest.approx(truth[name], rel=0.03), f"{name}; before: {was}"
+
+
 def _row_of_top(capture: Path, result: Measurement, view: int) -> int:
     """The depth-image row of a view in which the measured tree's top lies."""
     depth = load_capture(capture).views[view].camera.depth

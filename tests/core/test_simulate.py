@@ -51,6 +51,7 @@ from canopy_core.simulate.sensor import (
 )
 from canopy_core.simulate.stake import random_stake
 from canopy_core.simulate.tree import Tree, build_tree, random_lean, random_tree_shape, tree_dimensions
+from canopy_core.simulate.trellis import build_trellis
 
 SMALL_CAMERA = Intrinsics(width=160, height=120, fx=100.0, fy=100.0, cx=80.0, cy=60.0)
 LOOKING_ALONG_Y = camera_pose(np.array([0.0, 0.0, 1.0]), yaw_rad=np.pi / 2, pitch_rad=0.0, roll_rad=0.0)
@@ -879,3 +880,23 @@ def test_colours_of_no_points_are_none_not_an_opencv_error() -> None:
     empty = np.zeros(0)
     assert hsv_to_rgb(empty, empty, empty).shape == (0, 3)
     assert np.allclose(hsv_to_rgb(np.array([0.0]), np.array([1.0]), np.array([1.0])), [[1.0, 0.0, 0.0]])
+
+
+def test_posts_near_the_tree_stand_within_the_crown_s_reach_round_the_same_tree() -> None:
+    """``near_posts`` stands a post on each side 0.5-1.4 m from the trunk, 2.0-3.8 m tall (the trellis's
+    line posts there too), and draws as many numbers: the tree and its neighbours are the same."""
+    for seed in range(6):
+        plain = build_orchard(np.random.default_rng(seed))
+        near = build_orchard(np.random.default_rng(seed), near_posts=True)
+        np.testing.assert_array_equal(near.main_tree.mesh.vertices, plain.main_tree.mesh.vertices)
+        assert [tree.base.tolist() for tree in near.neighbours] == [
+            tree.base.tolist() for tree in plain.neighbours
+        ]
+        assert sorted(np.sign([x for x, _, _ in near.post_positions])) == [-1, 1]
+        assert all(0.5 <= abs(x) <= 1.4 for x, _, _ in near.post_positions)
+        assert all(abs(x) >= 1.6 for x, _, _ in plain.post_positions)
+        post_z = near.mesh.vertices[near.mesh.triangles[near.mesh.kinds == SurfaceKind.POST], 2]
+        assert 2.0 - 0.06 <= post_z.max() <= 3.8 + 0.06  # the floor undulates by a few centimetres
+        trellis = build_trellis(np.random.default_rng(seed), plain, near_posts=True)
+        line_posts = [x for x, _, _ in trellis.post_positions if abs(x) < 2.5]
+        assert len(line_posts) == 2 and all(0.5 <= abs(x) <= 1.4 for x in line_posts)
