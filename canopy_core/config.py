@@ -341,6 +341,16 @@ class PoleConfig(_Section):
         description="A pole is followed down and up its line through spans where nothing is seen on it up to "
         "this long: hidden behind leaves, tall grass or the trunk from both views.",
     )
+    spread_m: float = Field(
+        0.3,
+        ge=0.0,
+        le=2.0,
+        description="Where a pole stands alone, a view's points up to this far in front of it within its "
+        "outline (as that view's camera sees it) are its own: the last pixels across a round pole meet it at "
+        "grazing incidence, where a Kinect v2's depth noise along the ray is 5 cm at 80 degrees and 4 m, "
+        "and several times that nearer 90 degrees and in sun. Behind it, anything within its outline is its "
+        "mixed pixels: it hides what stands there.",
+    )
     min_trunk_gap_m: float = Field(
         0.1,
         ge=0.0,

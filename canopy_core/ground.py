@@ -282,7 +282,7 @@ def fit_ground_frame(
             contact = centroid - ((centroid - plane_point) @ up) * up
     rotation = _world_rotation(up, forward_hint)
     ground_world = (points_m[ground] - contact) @ rotation.T
-    trunk_xy, trunk_points, trunk_radius = _trunk_position(points_m, contact, rotation)
+    trunk_xy, trunk_points, trunk_radius = _trunk_position(points_m, contact, rotation, search_radius_m)
     ground_height = _local_ground_height(ground_world, trunk_xy, config.trunk_radius_m)
     world_from_reference = np.eye(4)
     world_from_reference[:3, :3] = rotation
@@ -349,13 +349,15 @@ def _world_rotation(up: np.ndarray, forward_hint: np.ndarray) -> np.ndarray:
 
 
 def _trunk_position(
-    points_m: np.ndarray, contact: np.ndarray, rotation: np.ndarray
+    points_m: np.ndarray, contact: np.ndarray, rotation: np.ndarray, crown_radius_m: float
 ) -> tuple[np.ndarray, int, float | None]:
     """Horizontal position of the trunk (the frame's with its origin at ``contact``), the points it was found
     from, and its radius where found on its bark: the centre of the circle of a trunk's size that the most
     points of a low slice near the balls' centroid lie on with nothing inside it (:func:`_bark_support`; seen
     from above, a trunk's bark is an arc or a ring, grass and weeds are scattered dots). The median of the
-    slice, which grass and weeds pull aside, and no radius, when no such circle is found."""
+    slice, which grass and weeds pull aside, and no radius, when no such circle is found. Of circles as well
+    supported (``_RIVAL_SHARE``) the one nearest the middle of what stands above the trunk's height within
+    ``crown_radius_m`` is the trunk: the crown stands over it."""
     world = (points_m - contact) @ rotation.T
     low, high = TRUNK_SLICE_M
     in_slice = (world[:, 2] > low) & (world[:, 2] < high)
@@ -363,7 +365,7 @@ def _trunk_position(
     if np.count_nonzero(in_slice) < _TRUNK_MIN_POINTS:
         return np.zeros(2), 0, None
     xy = world[in_slice, :2]
-    over = world[:, 2] > _CROWN_ABOVE_M
+    over = (world[:, 2] > _CROWN_ABOVE_M) & (np.linalg.norm(world[:, :2], axis=1) < crown_radius_m)
     found = _bark_circle(xy, toward_xy=np.median(world[over, :2], axis=0) if over.any() else None)
     if found is None:
         return np.median(xy, axis=0), int(xy.shape[0]), None

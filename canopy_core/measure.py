@@ -588,16 +588,19 @@ def _tree_masks(
         ]
     )
     if trunk_radius_m is not None:
-        off_wires[off_wires] = ~pole_mask(
+        poles = find_poles(
             candidates[off_wires],
-            find_poles(
-                candidates[off_wires],
-                ground_map.height_above(candidates[off_wires]),
-                trunk_xy_m=trunk_xy,
-                trunk_radius_m=trunk_radius_m,
-                foot_below_m=config.metrics.crown_piece_min_bottom_m,
-                config=config.poles,
-            ),
+            ground_map.height_above(candidates[off_wires]),
+            trunk_xy_m=trunk_xy,
+            trunk_radius_m=trunk_radius_m,
+            foot_below_m=config.metrics.crown_piece_min_bottom_m,
+            config=config.poles,
+        )
+        off_wires &= ~np.concatenate(
+            [
+                pole_mask(points, poles, camera_m=camera, spread_m=config.poles.spread_m)
+                for points, camera in zip(per_view, cameras_m, strict=True)
+            ]
         )
     connected = np.zeros(candidates.shape[0], dtype=bool)
     connected[off_wires] = tree_component(

@@ -28,33 +28,56 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from canopy_core.config import PoleConfig
+from canopy_core.trunk_axis import TrunkAxis
 
 __all__ = ["Pole", "find_poles", "pole_mask"]
 
 _MIN_GROUP_POINTS = 3
 """A slab's group of fewer points is a speck (a flying pixel), not a piece of a pole."""
+_MIN_CHAIN_SLABS = 3
+"""A line of fewer groups is not known to be straight. Lines this short are taken only as the rest of a pole
+found from the ground (the top of a post standing a little above the crown)."""
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Pole:
-    """A straight pole standing on the ground: its axis (x, y) = ``foot_xy_m`` + ``lean_per_m`` * z in the
-    world frame, the points within ``radius_m`` of it up to ``top_m`` high."""
+    """A pole standing on the ground: its axis runs straight through each stretch where it stands alone and
+    from one to the next (the views' registration may bend it by a few centimetres over metres), held
+    plumb beyond them; its points lie within ``radius_m`` of it, up to ``top_m`` high."""
 
-    foot_xy_m: tuple[float, float]
-    """Where the axis meets z = 0."""
-    lean_per_m: tuple[float, float]
-    """Horizontal change of the axis per metre of height."""
+    axis: TrunkAxis
+    """Where the axis stands at each height (a trunk's axis is kept the same way)."""
     radius_m: float
     """How far from the axis the pole's points lie: its surface seen, with the tolerance."""
     top_m: float
     """Height (world z) of the pole's highest slab."""
+    alone_m: tuple[tuple[float, float], ...]
+    """The heights (world z, lowest and highest) of each stretch where it stands alone."""
 
     def contains(self, points_m: np.ndarray) -> np.ndarray:
         """Mask of the ``(N, 3)`` world points that are the pole's (and whatever touches its surface)."""
-        axis = np.asarray(self.foot_xy_m) + points_m[:, 2:3] * np.asarray(self.lean_per_m)
-        return (np.linalg.norm(points_m[:, :2] - axis, axis=1) <= self.radius_m) & (
-            points_m[:, 2] <= self.top_m
-        )
+        return (self.axis.distance_m(points_m) <= self.radius_m) & (points_m[:, 2] <= self.top_m)
+
+    def in_sight(self, points_m: np.ndarray, camera_m: np.ndarray, *, spread_m: float) -> np.ndarray:
+        """Mask of one view's ``(N, 3)`` world points that its camera (centre ``camera_m``) sees along the
+        pole's outline (seen from above): behind its near surface at any height up to its top, which
+        the pole hides from that camera, so that only its mixed pixels lie there; and in front of it up
+        to ``spread_m`` where it stands alone (``alone_m``), its own noisiest pixels: the last pixels
+        across a round pole meet it at grazing incidence, where depth noise along the ray grows to
+        centimetres and decimetres."""
+        axis = self.axis.xy_at(points_m[:, 2])
+        to_axis = axis - camera_m[:2]
+        distance = np.linalg.norm(to_axis, axis=1)
+        toward = to_axis / distance[:, None]
+        offset = points_m[:, :2] - camera_m[:2]
+        along = np.einsum("ij,ij->i", offset, toward)
+        across = np.abs(offset[:, 0] * toward[:, 1] - offset[:, 1] * toward[:, 0])
+        outline = (across * distance <= self.radius_m * along) & (points_m[:, 2] <= self.top_m)
+        near = distance - self.radius_m
+        alone = np.zeros(points_m.shape[0], dtype=bool)
+        for low, high in self.alone_m:
+            alone |= (points_m[:, 2] >= low) & (points_m[:, 2] <= high)
+        return outline & ((along >= near) | (alone & (along >= near - spread_m)))
 
 
 @dataclass(frozen=True)
@@ -98,30 +121,28 @@ def find_poles(
         pole = _grounded_pole(chain, chains, points_m, heights_m, slab_of, foot_below_m, config)
         if pole is None:
             continue
-        axis_low = _axis_at(pole, points_m[chain.points, 2].min())
+        axis_low = pole.axis.xy_at(points_m[chain.points, 2].min(keepdims=True))[0]
         if np.linalg.norm(axis_low - trunk_xy_m) < trunk_radius_m + config.min_trunk_gap_m:
             continue  # the trunk itself, or too near it to be told from it
         above = points_m[points_m[:, 2] > (chain.slabs[-1] + 1) * config.slab_m]
         if above.shape[0]:
             crown_xy = np.median(above[:, :2], axis=0)
-            if np.linalg.norm(_axis_at(pole, float(np.median(above[:, 2]))) - crown_xy) < np.linalg.norm(
-                trunk_xy_m - crown_xy
-            ):
+            if np.linalg.norm(
+                pole.axis.xy_at(np.median(above[:, 2], keepdims=True))[0] - crown_xy
+            ) < np.linalg.norm(trunk_xy_m - crown_xy):
                 continue  # stands nearer the middle of what is above than the trunk: maybe the tree's trunk
         poles.append(pole)
     return tuple(poles)
 
 
-def _axis_at(pole: Pole, height_m: float) -> np.ndarray:
-    """Where ``pole``'s axis stands at ``height_m`` (world z)."""
-    return np.asarray(pole.foot_xy_m) + np.asarray(pole.lean_per_m) * height_m
-
-
-def pole_mask(points_m: np.ndarray, poles: tuple[Pole, ...]) -> np.ndarray:
-    """Mask of the ``(N, 3)`` world points on any of ``poles``."""
+def pole_mask(
+    points_m: np.ndarray, poles: tuple[Pole, ...], *, camera_m: np.ndarray, spread_m: float
+) -> np.ndarray:
+    """Mask of one view's ``(N, 3)`` world points on any of ``poles`` or along its outline as that view's
+    camera (centre ``camera_m``) sees it (:meth:`Pole.in_sight`)."""
     mask = np.zeros(points_m.shape[0], dtype=bool)
     for pole in poles:
-        mask |= pole.contains(points_m)
+        mask |= pole.contains(points_m) | pole.in_sight(points_m, camera_m, spread_m=spread_m)
     return mask
 
 
@@ -171,33 +192,63 @@ def _straight_chains(points_m: np.ndarray, slab_of: np.ndarray, config: PoleConf
         coo_matrix((np.ones(pairs.shape[0]), (pairs[:, 0], pairs[:, 1])), shape=(compact.size,) * 2),
         directed=False,
     )
-    min_slabs = int(np.ceil(config.min_length_m / config.slab_m))
     order = np.argsort(group)
     starts = np.searchsorted(group[order], np.arange(count + 1))
     chains = []
     for members in np.split(np.argsort(chain_of), np.cumsum(np.bincount(chain_of))[:-1]):
         groups = compact[members]
         slabs = group_slab[groups]
-        if np.unique(slabs).size != slabs.size or slabs.max() - slabs.min() + 1 < min_slabs:
-            continue  # two groups in one slab: no single line (a fork of branches); or too short
+        if np.unique(slabs).size != slabs.size or slabs.size < _MIN_CHAIN_SLABS:
+            continue  # two groups in one slab: no single line (a fork of branches); or too few
         ascending = np.argsort(slabs)
         groups, slabs = groups[ascending], slabs[ascending]
-        heights = (slabs + 0.5) * config.slab_m
-        design = np.column_stack([np.ones_like(heights), heights])
-        fit, *_ = np.linalg.lstsq(design, centres[groups], rcond=None)
-        residual = np.linalg.norm(centres[groups] - design @ fit, axis=1)
-        if np.sqrt(np.mean(residual**2)) > config.tolerance_m or np.linalg.norm(fit[1]) > lean:
+        foot, lean_per_m, rms = _line((slabs + 0.5) * config.slab_m, centres[groups])
+        if rms > config.tolerance_m or np.linalg.norm(lean_per_m) > lean:
             continue
         chains.append(
             _Chain(
                 slabs=slabs,
                 centres_xy_m=centres[groups],
                 points=np.concatenate([order[starts[g] : starts[g + 1]] for g in groups]),
-                foot_xy_m=fit[0],
-                lean_per_m=fit[1],
+                foot_xy_m=foot,
+                lean_per_m=lean_per_m,
             )
         )
     return chains
+
+
+def _line(heights_m: np.ndarray, centres_xy_m: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """The least-squares line (x, y) = foot + lean * z through ``(K, 2)`` centres at ``(K,)`` heights:
+    its foot, its lean per metre and the centres' RMS distance from it."""
+    design = np.column_stack([np.ones_like(heights_m), heights_m])
+    fit, *_ = np.linalg.lstsq(design, centres_xy_m, rcond=None)
+    residual = np.linalg.norm(centres_xy_m - design @ fit, axis=1)
+    return fit[0], fit[1], float(np.sqrt(np.mean(residual**2)))
+
+
+def _pole_along(parts: list[_Chain], points_m: np.ndarray, config: PoleConfig, *, top_m: float) -> Pole:
+    """The pole through the chains ``parts`` up to ``top_m``: each part's own line over its stretch,
+    straight lines between them. Its radius is as far as a slab's points lie from the line (the median over
+    the parts' slabs, so that grass at a post's foot does not widen it) with the tolerance, at most the
+    thickest pole's: each slab of a part is a group with nothing else near it, so all of its points are
+    the pole's, the mixed pixels at its outline too."""
+    heights, centres, radii = [], [], []
+    for part in sorted(parts, key=lambda chain: int(chain.slabs[0])):
+        ends = (part.slabs[[0, -1]] + 0.5) * config.slab_m
+        heights.append(ends)
+        centres.append(part.foot_xy_m + ends[:, None] * part.lean_per_m)
+        members = points_m[part.points]
+        offsets = members[:, :2] - (part.foot_xy_m + members[:, 2:3] * part.lean_per_m)
+        slab_of = np.floor(members[:, 2] / config.slab_m).astype(np.int64) - part.slabs[0]
+        widest = np.zeros(part.slabs[-1] - part.slabs[0] + 1)
+        np.maximum.at(widest, slab_of, np.linalg.norm(offsets, axis=1))
+        radii.extend(widest[part.slabs - part.slabs[0]])
+    return Pole(
+        axis=TrunkAxis(heights_m=np.concatenate(heights), centres_xy_m=np.concatenate(centres)),
+        radius_m=min(float(np.median(radii)), config.max_radius_m) + config.tolerance_m,
+        top_m=top_m,
+        alone_m=tuple((float(low), float(high)) for low, high in heights),
+    )
 
 
 def _grounded_pole(
@@ -213,19 +264,11 @@ def _grounded_pole(
     ``config.max_gap_m`` of ``foot_below_m`` above the ground (grass may hide a post's foot), and its column
     on down to below it; followed up its line through hidden spans up to ``config.max_gap_m``, and on
     through any of the other ``chains`` that continues the line above. None otherwise."""
+    if (chain.slabs[-1] - chain.slabs[0] + 1) * config.slab_m < config.min_length_m:
+        return None  # too short to be told from a weed's stem or a sucker
     if heights_m[chain.points].min() >= foot_below_m + config.max_gap_m:
         return None  # stands alone only high up (a leader's bare tip over the crown): not from the ground
-    offsets = points_m[chain.points, :2] - (chain.foot_xy_m + points_m[chain.points, 2:3] * chain.lean_per_m)
-    radius = min(
-        float(np.percentile(np.linalg.norm(offsets, axis=1), 95)) + config.tolerance_m,
-        config.max_radius_m + config.tolerance_m,
-    )
-    pole = Pole(
-        foot_xy_m=tuple(chain.foot_xy_m),
-        lean_per_m=tuple(chain.lean_per_m),
-        radius_m=radius,
-        top_m=float(np.inf),
-    )
+    pole = _pole_along([chain], points_m, config, top_m=float(np.inf))
     column = pole.contains(points_m)
     slabs = np.unique(slab_of[column])
     gap = int(np.floor(config.max_gap_m / config.slab_m)) + 1
@@ -234,16 +277,12 @@ def _grounded_pole(
     run = next(run for run in runs if run[0] <= chain.slabs[0] <= run[-1])
     if heights_m[column & (slab_of <= run[0])].min() >= foot_below_m:
         return None
-    top = run[-1]
-    for other in sorted(chains, key=lambda c: int(c.slabs[-1])):
-        if other.slabs[-1] <= top:
-            continue
+    top, parts = run[-1], [chain]
+    for other in sorted(chains, key=lambda c: int(c.slabs[0])):
+        if other.slabs[0] <= parts[-1].slabs[-1]:
+            continue  # below, or beside a part taken already
         along = chain.foot_xy_m + ((other.slabs[:, None] + 0.5) * config.slab_m) * chain.lean_per_m
-        if np.linalg.norm(other.centres_xy_m - along, axis=1).max() <= radius:
+        if np.linalg.norm(other.centres_xy_m - along, axis=1).max() <= pole.radius_m:
             top = max([other.slabs[-1], *(r[-1] for r in runs if r[0] <= other.slabs[-1] <= r[-1])])
-    return Pole(
-        foot_xy_m=pole.foot_xy_m,
-        lean_per_m=pole.lean_per_m,
-        radius_m=radius,
-        top_m=float((top + 1) * config.slab_m),
-    )
+            parts.append(other)
+    return _pole_along(parts, points_m, config, top_m=float((top + 1) * config.slab_m))

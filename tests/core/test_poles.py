@@ -13,6 +13,8 @@ TRUNK_RADIUS_M = 0.06
 POST_XY_M = np.array([0.7, 0.02])
 CROWN_BASE_M, CROWN_TOP_M = 1.0, 2.6
 FOOT_BELOW_M = MetricsConfig().crown_piece_min_bottom_m
+NOISE_M = 0.004
+"""Each coordinate's noise on a surface point."""
 
 
 def _cylinder(
@@ -22,7 +24,7 @@ def _cylinder(
     z = rng.uniform(low_m, high_m, count)
     angle = rng.uniform(0.0, 2 * np.pi, count)
     surface = xy + radius_m * np.column_stack([np.cos(angle), np.sin(angle)])
-    return np.column_stack([surface, z]) + rng.normal(0.0, 0.004, (count, 3))
+    return np.column_stack([surface, z]) + rng.normal(0.0, NOISE_M, (count, 3))
 
 
 def _crown(rng: np.random.Generator) -> np.ndarray:
@@ -68,6 +70,14 @@ def _poles(points: np.ndarray, trunk_xy: tuple[float, float] = (0.0, 0.0)) -> tu
     )
 
 
+def _on(points: np.ndarray, poles: tuple[Pole, ...]) -> np.ndarray:
+    """Mask of the points on any of the poles themselves (not along a view's sight of them)."""
+    mask = np.zeros(points.shape[0], dtype=bool)
+    for pole in poles:
+        mask |= pole.contains(points)
+    return mask
+
+
 def test_a_post_the_crown_has_grown_round_is_found_from_the_ground_to_its_top_above_the_crown() -> None:
     rng = np.random.default_rng(0)
     parts = _tree(rng)
@@ -77,11 +87,15 @@ def test_a_post_the_crown_has_grown_round_is_found_from_the_ground_to_its_top_ab
     poles = _poles(points)
 
     assert len(poles) == 1
-    on_post = pole_mask(post, poles)
+    on_post = _on(post, poles)
     assert on_post.all()  # below the crown, through it and above it
-    assert not pole_mask(parts["trunk"], poles).any()
-    assert not pole_mask(parts["tip"], poles).any()
-    assert np.mean(pole_mask(parts["crown"], poles)) < 0.01  # the leaves touching the post, no more
+    assert not _on(parts["trunk"], poles).any()
+    assert not _on(parts["tip"], poles).any()
+    # The leaves touching the post, no more: within its 5 cm radius, the noise (the widest of a slab's
+    # hundred-odd points, at most 4 sigma) and the tolerance.
+    assert poles[0].radius_m < 0.05 + 4 * NOISE_M + PoleConfig().tolerance_m
+    taken = parts["crown"][_on(parts["crown"], poles)]
+    assert (np.linalg.norm(taken[:, :2] - POST_XY_M, axis=1) < poles[0].radius_m + 0.01).all()
 
 
 def test_the_tree_is_measured_to_its_own_top_not_the_post_s() -> None:
@@ -93,7 +107,7 @@ def test_the_tree_is_measured_to_its_own_top_not_the_post_s() -> None:
     trunk = TrunkAxis.vertical((0.0, 0.0))
 
     with_post = canopy_metrics(points, trunk=trunk, config=config)
-    without = canopy_metrics(points[~pole_mask(points, _poles(points))], trunk=trunk, config=config)
+    without = canopy_metrics(points[~_on(points, _poles(points))], trunk=trunk, config=config)
 
     assert with_post.height_m > CROWN_TOP_M + 0.4  # the post's top, as before
     assert abs(without.height_m - (CROWN_TOP_M + 0.19)) < 0.02  # the leader's tip
@@ -112,7 +126,7 @@ def test_a_post_whose_foot_tall_grass_hides_is_found_from_above_the_grass() -> N
     poles = _poles(points)
 
     assert len(poles) == 1
-    assert pole_mask(post[~hidden], poles).all()
+    assert _on(post[~hidden], poles).all()
 
 
 def test_the_trunk_a_leader_s_bare_tip_and_a_weed_are_no_poles() -> None:
@@ -135,4 +149,31 @@ def test_an_upright_nearer_the_crown_s_middle_than_the_trunk_is_not_taken_for_a_
 
     poles = _poles(points, trunk_xy=(float(POST_XY_M[0]), float(POST_XY_M[1])))
 
-    assert not pole_mask(parts["trunk"], poles).any()
+    assert not _on(parts["trunk"], poles).any()
+
+
+def test_a_view_s_noisy_and_mixed_pixels_along_a_post_s_outline_are_the_post_s_not_the_crown_s() -> None:
+    """One camera 3.5 m away: at the outline of a round post its pixels meet it at grazing incidence and
+    scatter along the rays, in front of it and behind; above the crown they would stand as the tree's top.
+    What lies along the outline in front of the post inside the crown is leaves, and stays."""
+    rng = np.random.default_rng(5)
+    camera = np.array([POST_XY_M[0], -3.5, 1.3])
+    parts = _tree(rng)
+    post = _cylinder(rng, POST_XY_M, 0.05, 0.12, CROWN_TOP_M + 0.5, 8000)
+    poles = _poles(np.vstack([*parts.values(), post]))
+    z = rng.uniform(CROWN_TOP_M + 0.05, CROWN_TOP_M + 0.45, 60)
+    along_ray = rng.choice([-1.0, 1.0], 60) * rng.uniform(0.03, 0.25, 60)  # off the surface, either way
+    scattered = np.column_stack([np.full(60, POST_XY_M[0] + 0.04), np.full(60, POST_XY_M[1] - 0.05), z])
+    scattered[:, 1] += along_ray
+    leaves_in_front = np.column_stack(
+        [np.full(30, POST_XY_M[0] + 0.02), np.full(30, -0.25), rng.uniform(1.4, 2.0, 30)]
+    )
+    beside = np.column_stack([np.full(30, POST_XY_M[0] + 0.2), np.full(30, -0.1), rng.uniform(2.7, 3.0, 30)])
+
+    def in_sight(points: np.ndarray) -> np.ndarray:
+        return pole_mask(points, poles, camera_m=camera, spread_m=PoleConfig().spread_m)
+
+    assert not _on(scattered, poles).all()  # the cylinder alone leaves some: they would make the top
+    assert in_sight(scattered).all()
+    assert not in_sight(leaves_in_front).any()
+    assert not in_sight(beside).any()
