@@ -34,6 +34,10 @@ __all__ = ["Pole", "find_poles", "pole_mask"]
 
 _MIN_GROUP_POINTS = 3
 """A slab's group of fewer points is a speck (a flying pixel), not a piece of a pole."""
+_COMPACT_SHARE = 0.9
+"""A slab of a pole is compact when this share of its points lie within the thickest pole's radius of its
+centre: the rest may be its noisiest pixels, at grazing incidence on its outline, scattered along the rays
+by a decimetre or more."""
 _MIN_CHAIN_SLABS = 3
 """A line of fewer groups is not known to be straight. Lines this short are taken only as the rest of a pole
 found from the ground (the top of a post standing a little above the crown)."""
@@ -150,10 +154,11 @@ def _straight_chains(points_m: np.ndarray, slab_of: np.ndarray, config: PoleConf
     """The straight, nearly vertical lines of compact groups standing alone, slab after slab.
 
     Each slab's points are grouped on a grid of ``config.cell_m`` cells, cells within about
-    ``config.isolation_m`` of each other joined; a group is compact when its points lie within
-    ``config.max_radius_m`` (and the tolerance) of its centre. Groups of slabs one or two apart whose centres
-    stand within the lean's reach join a chain; a chain is kept when its centres lie within
-    ``config.tolerance_m`` (RMS) of a line leaning at most ``config.max_lean_deg``.
+    ``config.isolation_m`` of each other joined; a group is compact when its points (but the farthest
+    tenth, ``_COMPACT_SHARE``) lie within ``config.max_radius_m`` (and the tolerance) of its centre (see
+    :func:`_trimmed_groups`). Groups of slabs one or two apart whose centres stand within the lean's reach
+    join a chain; a chain is kept when its centres lie within ``config.tolerance_m`` (RMS) of a line
+    leaning at most ``config.max_lean_deg``.
     """
     cell = np.floor(points_m[:, :2] / config.cell_m).astype(np.int64)
     cell -= cell.min(axis=0)
@@ -169,12 +174,7 @@ def _straight_chains(points_m: np.ndarray, slab_of: np.ndarray, config: PoleConf
     labels, count = ndimage.label(joined, structure=within_slab)
     group = labels[slab, cell[:, 0], cell[:, 1]] - 1
     sizes = np.bincount(group, minlength=count)
-    centres = (
-        np.column_stack([np.bincount(group, weights=points_m[:, axis], minlength=count) for axis in (0, 1)])
-        / np.maximum(sizes, 1)[:, None]
-    )
-    extent = np.zeros(count)
-    np.maximum.at(extent, group, np.linalg.norm(points_m[:, :2] - centres[group], axis=1))
+    centres, order, starts, extent = _trimmed_groups(points_m[:, :2], group, sizes)
     group_slab = np.zeros(count, dtype=np.int64)
     group_slab[group] = slab_of
     compact = np.flatnonzero(
@@ -192,8 +192,6 @@ def _straight_chains(points_m: np.ndarray, slab_of: np.ndarray, config: PoleConf
         coo_matrix((np.ones(pairs.shape[0]), (pairs[:, 0], pairs[:, 1])), shape=(compact.size,) * 2),
         directed=False,
     )
-    order = np.argsort(group)
-    starts = np.searchsorted(group[order], np.arange(count + 1))
     chains = []
     for members in np.split(np.argsort(chain_of), np.cumsum(np.bincount(chain_of))[:-1]):
         groups = compact[members]
@@ -215,6 +213,35 @@ def _straight_chains(points_m: np.ndarray, slab_of: np.ndarray, config: PoleConf
             )
         )
     return chains
+
+
+def _trimmed_groups(
+    xy_m: np.ndarray, group: np.ndarray, sizes: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Each group's centre, robust to its farthest points: the mean of the ``_COMPACT_SHARE`` of its points
+    nearest the mean of all. Returns the centres; the points' order by group and, within each, by distance
+    from its centre; where each group starts in that order; and how far from its centre that share of
+    each group's points lie. Every group holds a point (``sizes`` > 0)."""
+    count, n = sizes.size, group.size
+    starts = np.concatenate([[0], np.cumsum(sizes)])
+
+    def mean_of(mask: np.ndarray) -> np.ndarray:
+        weights = np.bincount(group[mask], minlength=count)
+        sums = [np.bincount(group[mask], weights=xy_m[mask, axis], minlength=count) for axis in (0, 1)]
+        return np.column_stack(sums) / np.maximum(weights, 1)[:, None]
+
+    def by_distance(centres: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        from_centre = np.linalg.norm(xy_m - centres[group], axis=1)
+        order = np.lexsort((from_centre, group))
+        rank = np.empty(n, dtype=np.int64)
+        rank[order] = np.arange(n) - starts[group[order]]
+        return from_centre, order, rank
+
+    _, _, rank = by_distance(mean_of(np.ones(n, dtype=bool)))
+    centres = mean_of(rank < np.ceil(_COMPACT_SHARE * sizes[group]))
+    from_centre, order, _ = by_distance(centres)
+    extent = from_centre[order[starts[:-1] + np.floor(_COMPACT_SHARE * (sizes - 1)).astype(np.int64)]]
+    return centres, order, starts, extent
 
 
 def _line(heights_m: np.ndarray, centres_xy_m: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
