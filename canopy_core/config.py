@@ -301,9 +301,9 @@ class PoleConfig(_Section):
         0.08,
         gt=0.0,
         le=0.5,
-        description="A slab of a pole standing in open air has nothing nearer it than about this: groups of "
-        "a slab closer together are one group. Leaves in a crown stand a few centimetres apart, so a post "
-        "inside the crown shows no group of its own there.",
+        description="A slab of a pole standing in open air has nothing nearer it than about this: a slab's "
+        "groups closer together (this rounded up to an even number of cells) are one group. Leaves in a "
+        "crown stand a few centimetres apart, so a post inside the crown shows no group of its own there.",
     )
     max_radius_m: float = Field(
         0.12,
@@ -311,6 +311,14 @@ class PoleConfig(_Section):
         le=0.5,
         description="The thickest pole sought: a slab of it lies within this of its group's centre. Trellis "
         "posts are 5-20 cm thick (wood 8-15 cm, concrete 10-12 cm, steel 5-8 cm); support stakes 2 cm.",
+    )
+    min_radius_m: float = Field(
+        0.025,
+        gt=0.0,
+        le=0.5,
+        description="The thinnest pole taken: as far as its surface's points lie from its axis. Trellis "
+        "posts are at least 5 cm thick; a sucker or a shoot beside the trunk, or a 2 cm support stake, is "
+        "thinner and is not taken for a post.",
     )
     tolerance_m: float = Field(
         0.02,
@@ -355,7 +363,8 @@ class PoleConfig(_Section):
         0.1,
         ge=0.0,
         le=1.0,
-        description="A pole's axis stands at least this far outside the trunk's bark at its foot: nearer, "
+        description="A pole's axis stands at least this far outside the trunk's bark (at the lowest point "
+        "where it stands alone): nearer, "
         "its line cannot be told from the trunk's own outline and the suckers at its foot, and it is not "
         "sought (a support stake tied to the trunk is not found as a pole).",
     )

@@ -61,6 +61,12 @@ as the trunk, and may be better seen. Of such rivals the trunk is the one the cr
 _CROWN_ABOVE_M = 2 * TRUNK_SLICE_M[1]
 """Points higher than this in the frame are the crown's, and whatever stands in it, when the trunk is told
 from rival uprights by what stands over it: above the trunk's slice, twice as high."""
+UPRIGHT_CLEARANCE_M = 0.3
+"""The middle of a crown is taken without the points this near an upright that may be the trunk (a post
+2-4 m tall is a column of points of its own, which would pull the middle towards it)."""
+CLEARLY_NEARER = 0.5
+"""An upright is taken over another for the trunk by the crown it stands under only when it stands at most
+this share of the other's distance from the crown's middle: crowns lean and grow lopsided by decimetres."""
 _MAX_VIEW_TILT_DEG = 45.0
 """A view's ground is within this of the camera's up: crews hold the camera roughly level."""
 _MIN_VIEW_GROUND_SHARE = 0.05
@@ -355,9 +361,10 @@ def _trunk_position(
     from, and its radius where found on its bark: the centre of the circle of a trunk's size that the most
     points of a low slice near the balls' centroid lie on with nothing inside it (:func:`_bark_support`; seen
     from above, a trunk's bark is an arc or a ring, grass and weeds are scattered dots). The median of the
-    slice, which grass and weeds pull aside, and no radius, when no such circle is found. Of circles as well
-    supported (``_RIVAL_SHARE``) the one nearest the middle of what stands above the trunk's height within
-    ``crown_radius_m`` is the trunk: the crown stands over it."""
+    slice, which grass and weeds pull aside, and no radius, when no such circle is found. A circle apart
+    from that one with at least half its bark (``_RIVAL_SHARE``) is taken instead when it stands clearly
+    nearer the middle of what stands above the trunk's height within ``crown_radius_m``
+    (:func:`crown_middle`, ``CLEARLY_NEARER``): the crown stands over the trunk."""
     world = (points_m - contact) @ rotation.T
     low, high = TRUNK_SLICE_M
     in_slice = (world[:, 2] > low) & (world[:, 2] < high)
@@ -366,7 +373,7 @@ def _trunk_position(
         return np.zeros(2), 0, None
     xy = world[in_slice, :2]
     over = (world[:, 2] > _CROWN_ABOVE_M) & (np.linalg.norm(world[:, :2], axis=1) < crown_radius_m)
-    found = _bark_circle(xy, toward_xy=np.median(world[over, :2], axis=0) if over.any() else None)
+    found = _bark_circle(xy, above_xy=world[over, :2])
     if found is None:
         return np.median(xy, axis=0), int(xy.shape[0]), None
     centre, radius, on_arc = found
@@ -427,12 +434,12 @@ def _trunk_slice(
 
 
 def _bark_circle(
-    xy: np.ndarray, *, toward_xy: np.ndarray | None = None
+    xy: np.ndarray, *, above_xy: np.ndarray | None = None
 ) -> tuple[np.ndarray, float, int] | None:
     """The centre and radius of the trunk-sized circle that the most of ``(N, 2)`` slice points lie on with
     nothing inside it, refitted on its arc, and how many points lie on that arc; None when no three nearby
-    points make a circle of a trunk's size. With ``toward_xy`` (the middle of the crown), of that circle
-    and its rivals (``_RIVAL_SHARE``) the one nearest it."""
+    points make a circle of a trunk's size. With ``above_xy`` (where the points above the trunk's height
+    stand), a rival circle (``_RIVAL_SHARE``) clearly nearer their middle is taken instead."""
     rng = np.random.default_rng(0)
     scored = xy[rng.permutation(xy.shape[0])[:_TRUNK_SCORED_POINTS]]
     centres, radii = _trunk_circles(scored, rng)
@@ -442,14 +449,31 @@ def _bark_circle(
         [_bark_support(scored, centre, radius) for centre, radius in zip(centres, radii, strict=True)]
     )
     best = int(np.argmax(support))
-    if toward_xy is not None:
-        apart = np.linalg.norm(centres - centres[best], axis=1) > 2 * TRUNK_RADIUS_RANGE_M[1]
-        contenders = np.flatnonzero(
-            (apart & (support >= _RIVAL_SHARE * support[best])) | (support == support[best])
-        )
-        best = int(contenders[np.argmin(np.linalg.norm(centres[contenders] - toward_xy, axis=1))])
+    apart = np.linalg.norm(centres - centres[best], axis=1) > 2 * TRUNK_RADIUS_RANGE_M[1]
+    rivals = np.flatnonzero(apart & (support >= _RIVAL_SHARE * support[best]))
+    if above_xy is not None and rivals.size:
+        middle = crown_middle(above_xy, np.vstack([centres[best], centres[rivals]]))
+        if middle is not None:
+            distance = np.linalg.norm(centres[rivals] - middle, axis=1)
+            nearest = int(np.argmin(distance))
+            if distance[nearest] < CLEARLY_NEARER * np.linalg.norm(centres[best] - middle):
+                best = int(rivals[nearest])
     on_arc = xy[np.abs(np.linalg.norm(xy - centres[best], axis=1) - radii[best]) < _TRUNK_TOLERANCE_M]
     return *fit_circle(on_arc), int(on_arc.shape[0])
+
+
+def crown_middle(above_xy: np.ndarray, uprights_xy: np.ndarray) -> np.ndarray | None:
+    """The middle of where the ``(N, 2)`` points above the trunk's height stand, without those within
+    ``UPRIGHT_CLEARANCE_M`` of any of the ``(K, 2)`` uprights that may be the trunk: halfway between the
+    5th and 95th percentiles along x and y, the middle of what they span. Not their mean or median: each
+    view sees its near side of the crown more densely than the other's, and a vase crown is a hollow shell.
+    None when nothing else stands there."""
+    distance, _ = cKDTree(uprights_xy).query(above_xy, distance_upper_bound=UPRIGHT_CLEARANCE_M)
+    clear = above_xy[~np.isfinite(distance)]
+    if not clear.shape[0]:
+        return None
+    low, high = np.percentile(clear, [5, 95], axis=0)
+    return (low + high) / 2
 
 
 def _trunk_circles(xy: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:

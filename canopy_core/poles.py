@@ -28,7 +28,8 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from canopy_core.config import PoleConfig
-from canopy_core.trunk_axis import TrunkAxis
+from canopy_core.ground import CLEARLY_NEARER, crown_middle
+from canopy_core.trunk_axis import SOLID_INSIDE_SHARE, TrunkAxis
 
 __all__ = ["Pole", "find_poles", "pole_mask"]
 
@@ -51,12 +52,19 @@ class Pole:
 
     axis: TrunkAxis
     """Where the axis stands at each height (a trunk's axis is kept the same way)."""
-    radius_m: float
-    """How far from the axis the pole's points lie: its surface seen, with the tolerance."""
+    surface_radius_m: float
+    """How far from the axis its surface's points lie (their noise included)."""
+    tolerance_m: float
+    """The margin round that surface within which points are the pole's."""
     top_m: float
-    """Height (world z) of the pole's highest slab."""
+    """Height (world z) of the pole's highest slab seen."""
     alone_m: tuple[tuple[float, float], ...]
     """The heights (world z, lowest and highest) of each stretch where it stands alone."""
+
+    @property
+    def radius_m(self) -> float:
+        """How far from the axis the pole's points lie: its surface, with the tolerance."""
+        return self.surface_radius_m + self.tolerance_m
 
     def contains(self, points_m: np.ndarray) -> np.ndarray:
         """Mask of the ``(N, 3)`` world points that are the pole's (and whatever touches its surface)."""
@@ -68,15 +76,15 @@ class Pole:
         the pole hides from that camera, so that only its mixed pixels lie there; and in front of it up
         to ``spread_m`` where it stands alone (``alone_m``), its own noisiest pixels: the last pixels
         across a round pole meet it at grazing incidence, where depth noise along the ray grows to
-        centimetres and decimetres."""
-        axis = self.axis.xy_at(points_m[:, 2])
-        to_axis = axis - camera_m[:2]
+        centimetres and decimetres. Nothing where the camera stands inside the pole's radius."""
+        to_axis = self.axis.xy_at(points_m[:, 2]) - camera_m[:2]
         distance = np.linalg.norm(to_axis, axis=1)
-        toward = to_axis / distance[:, None]
+        outside = distance > self.radius_m
+        toward = to_axis / np.maximum(distance, self.radius_m)[:, None]
         offset = points_m[:, :2] - camera_m[:2]
         along = np.einsum("ij,ij->i", offset, toward)
         across = np.abs(offset[:, 0] * toward[:, 1] - offset[:, 1] * toward[:, 0])
-        outline = (across * distance <= self.radius_m * along) & (points_m[:, 2] <= self.top_m)
+        outline = outside & (across * distance <= self.radius_m * along) & (points_m[:, 2] <= self.top_m)
         near = distance - self.radius_m
         alone = np.zeros(points_m.shape[0], dtype=bool)
         for low, high in self.alone_m:
@@ -93,7 +101,7 @@ class _Chain:
     centres_xy_m: np.ndarray
     """``(K, 2)`` the groups' centres."""
     points: np.ndarray
-    """Indices of the chain's points."""
+    """Indices of the chain's points (of each group, the ``_COMPACT_SHARE`` nearest its centre)."""
     foot_xy_m: np.ndarray
     lean_per_m: np.ndarray
 
@@ -128,15 +136,23 @@ def find_poles(
         axis_low = pole.axis.xy_at(points_m[chain.points, 2].min(keepdims=True))[0]
         if np.linalg.norm(axis_low - trunk_xy_m) < trunk_radius_m + config.min_trunk_gap_m:
             continue  # the trunk itself, or too near it to be told from it
-        above = points_m[points_m[:, 2] > (chain.slabs[-1] + 1) * config.slab_m]
-        if above.shape[0]:
-            crown_xy = np.median(above[:, :2], axis=0)
-            if np.linalg.norm(
-                pole.axis.xy_at(np.median(above[:, 2], keepdims=True))[0] - crown_xy
-            ) < np.linalg.norm(trunk_xy_m - crown_xy):
-                continue  # stands nearer the middle of what is above than the trunk: maybe the tree's trunk
+        if not _trunk_clearly_under_crown(pole, points_m, trunk_xy_m):
+            continue  # maybe the tree's own trunk (the trunk found a post), or a second stem
         poles.append(pole)
     return tuple(poles)
+
+
+def _trunk_clearly_under_crown(pole: Pole, points_m: np.ndarray, trunk_xy_m: np.ndarray) -> bool:
+    """Whether the trunk stands clearly nearer than ``pole`` the middle of what stands above the pole's
+    lowest stretch alone (:func:`canopy_core.ground.crown_middle`, ``CLEARLY_NEARER``), as it does under
+    the crown it carries; else the pole may be the tree's own trunk, were the trunk found on a post, or a
+    second stem, and is left in the tree. True when nothing else stands above."""
+    above = points_m[points_m[:, 2] > pole.alone_m[0][1]]
+    middle = crown_middle(above[:, :2], np.vstack([trunk_xy_m, pole.axis.centres_xy_m]))
+    if middle is None:
+        return True
+    at_middle = pole.axis.xy_at(np.median(above[:, 2], keepdims=True))[0]
+    return bool(np.linalg.norm(trunk_xy_m - middle) < CLEARLY_NEARER * np.linalg.norm(at_middle - middle))
 
 
 def pole_mask(
@@ -165,7 +181,7 @@ def _straight_chains(points_m: np.ndarray, slab_of: np.ndarray, config: PoleConf
     slab = slab_of - slab_of.min()
     grid = np.zeros((slab.max() + 1, *(cell.max(axis=0) + 1)), dtype=bool)  # slab by slab, each contiguous
     grid[slab, cell[:, 0], cell[:, 1]] = True
-    reach = max(1, round(config.isolation_m / config.cell_m / 2))
+    reach = max(1, int(np.ceil(config.isolation_m / config.cell_m / 2)))
     joined = grid
     for axis in (1, 2):  # a square of cells round each occupied one, in two cheap passes
         joined = ndimage.maximum_filter1d(joined, size=2 * reach + 1, axis=axis)
@@ -175,6 +191,7 @@ def _straight_chains(points_m: np.ndarray, slab_of: np.ndarray, config: PoleConf
     group = labels[slab, cell[:, 0], cell[:, 1]] - 1
     sizes = np.bincount(group, minlength=count)
     centres, order, starts, extent = _trimmed_groups(points_m[:, :2], group, sizes)
+    kept = np.ceil(_COMPACT_SHARE * sizes).astype(np.int64)  # each group's points nearest its centre
     group_slab = np.zeros(count, dtype=np.int64)
     group_slab[group] = slab_of
     compact = np.flatnonzero(
@@ -207,7 +224,7 @@ def _straight_chains(points_m: np.ndarray, slab_of: np.ndarray, config: PoleConf
             _Chain(
                 slabs=slabs,
                 centres_xy_m=centres[groups],
-                points=np.concatenate([order[starts[g] : starts[g + 1]] for g in groups]),
+                points=np.concatenate([order[starts[g] : starts[g] + kept[g]] for g in groups]),
                 foot_xy_m=foot,
                 lean_per_m=lean_per_m,
             )
@@ -272,7 +289,8 @@ def _pole_along(parts: list[_Chain], points_m: np.ndarray, config: PoleConfig, *
         radii.extend(widest[part.slabs - part.slabs[0]])
     return Pole(
         axis=TrunkAxis(heights_m=np.concatenate(heights), centres_xy_m=np.concatenate(centres)),
-        radius_m=min(float(np.median(radii)), config.max_radius_m) + config.tolerance_m,
+        surface_radius_m=min(float(np.median(radii)), config.max_radius_m),
+        tolerance_m=config.tolerance_m,
         top_m=top_m,
         alone_m=tuple((float(low), float(high)) for low, high in heights),
     )
@@ -287,29 +305,64 @@ def _grounded_pole(
     foot_below_m: float,
     config: PoleConfig,
 ) -> Pole | None:
-    """The pole ``chain`` is part of, if it rises from the ground: the chain itself reaches down to within
+    """The pole ``chain`` is part of, if it is one and rises from the ground: the chain is at least
+    ``config.min_length_m`` long and ``config.min_radius_m`` thick, reaches down to within
     ``config.max_gap_m`` of ``foot_below_m`` above the ground (grass may hide a post's foot), and its column
-    on down to below it; followed up its line through hidden spans up to ``config.max_gap_m``, and on
-    through any of the other ``chains`` that continues the line above. None otherwise."""
+    goes on down to below it through hidden spans up to ``config.max_gap_m``. It goes on up through any of
+    the other ``chains`` that continues its line above, and on from the highest of them as long as its
+    surface shows (:func:`_surface_top`). None otherwise."""
     if (chain.slabs[-1] - chain.slabs[0] + 1) * config.slab_m < config.min_length_m:
-        return None  # too short to be told from a weed's stem or a sucker
+        return None  # too short to be told from a weed's stem
     if heights_m[chain.points].min() >= foot_below_m + config.max_gap_m:
         return None  # stands alone only high up (a leader's bare tip over the crown): not from the ground
     pole = _pole_along([chain], points_m, config, top_m=float(np.inf))
-    column = pole.contains(points_m)
-    slabs = np.unique(slab_of[column])
-    gap = int(np.floor(config.max_gap_m / config.slab_m)) + 1
-    breaks = np.flatnonzero(np.diff(slabs) > gap)
-    runs = np.split(slabs, breaks + 1)
-    run = next(run for run in runs if run[0] <= chain.slabs[0] <= run[-1])
-    if heights_m[column & (slab_of <= run[0])].min() >= foot_below_m:
-        return None
-    top, parts = run[-1], [chain]
+    if pole.surface_radius_m < config.min_radius_m:
+        return None  # a sucker, a shoot, a stake's line of pixels
+    column = pole.contains(points_m) & (slab_of <= chain.slabs[0])
+    column[chain.points] = True
+    downwards = np.unique(slab_of[column])[::-1]
+    breaks = np.flatnonzero(-np.diff(downwards) > _gap_slabs(config))
+    lowest = downwards[breaks[0]] if breaks.size else downwards[-1]
+    if heights_m[column & (slab_of >= lowest)].min() >= foot_below_m:
+        return None  # its column ends above the ground: it hangs (a branch), or stands on something
+    parts = [chain]
     for other in sorted(chains, key=lambda c: int(c.slabs[0])):
         if other.slabs[0] <= parts[-1].slabs[-1]:
             continue  # below, or beside a part taken already
         along = chain.foot_xy_m + ((other.slabs[:, None] + 0.5) * config.slab_m) * chain.lean_per_m
         if np.linalg.norm(other.centres_xy_m - along, axis=1).max() <= pole.radius_m:
-            top = max([other.slabs[-1], *(r[-1] for r in runs if r[0] <= other.slabs[-1] <= r[-1])])
             parts.append(other)
-    return _pole_along(parts, points_m, config, top_m=float((top + 1) * config.slab_m))
+    joined = _pole_along(parts, points_m, config, top_m=float(np.inf))
+    return _pole_along(
+        parts, points_m, config, top_m=_surface_top(joined, parts[-1], points_m, slab_of, config)
+    )
+
+
+def _surface_top(
+    pole: Pole, highest: _Chain, points_m: np.ndarray, slab_of: np.ndarray, config: PoleConfig
+) -> float:
+    """How high ``pole`` goes: from its ``highest`` stretch alone, up through the slabs where its surface
+    shows (points on it, few inside it: a pole is solid; ``SOLID_INSIDE_SHARE``), spans where nothing
+    shows on it up to ``config.max_gap_m`` bridged (leaves in front of it); it ends where nothing shows
+    for longer, or where points stand inside it (leaves where it no longer stands)."""
+    distance = pole.axis.distance_m(points_m)
+    near = distance <= pole.radius_m
+    inside = distance < pole.surface_radius_m - pole.tolerance_m
+    top = int(highest.slabs[-1])
+    hidden = 0
+    for slab in range(top + 1, int(slab_of.max()) + 1):
+        shown = near & (slab_of == slab)
+        if not shown.any():
+            hidden += 1
+            if hidden >= _gap_slabs(config):
+                break
+            continue
+        if np.count_nonzero(shown & inside) > SOLID_INSIDE_SHARE * np.count_nonzero(shown & ~inside):
+            break
+        top, hidden = slab, 0
+    return float((top + 1) * config.slab_m)
+
+
+def _gap_slabs(config: PoleConfig) -> int:
+    """Slabs one past the longest hidden span a pole is followed through (``config.max_gap_m``)."""
+    return int(np.floor(config.max_gap_m / config.slab_m)) + 1

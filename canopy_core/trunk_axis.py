@@ -25,12 +25,12 @@ import numpy as np
 from canopy_core.config import MetricsConfig
 from canopy_core.ground import TRUNK_RADIUS_RANGE_M, TRUNK_SLICE_M, fit_circle
 
-__all__ = ["TrunkAxis", "follow_trunk"]
+__all__ = ["SOLID_INSIDE_SHARE", "TrunkAxis", "follow_trunk"]
 
 _FOOT_HEIGHT_M = sum(TRUNK_SLICE_M) / 2
 """The foot circle is the bark's in the ground frame's low slice: the axis's first point stands at its
 middle height, and below it the axis is held there."""
-_INSIDE_SHARE = 0.2
+SOLID_INSIDE_SHARE = 0.2
 """A slab shows the trunk when at most this many points per point on its circle lie inside it: a trunk is
 solid, only the depth noise puts a few of its bark's points inside; leaves round the trunk, a fork's two
 stems or a circle drawn through foliage have as many inside as on it, or more."""
@@ -145,7 +145,7 @@ def _slab_circle(
 ) -> tuple[np.ndarray, float, int] | None:
     """Centre, radius and number of points on it of the trunk's circle among a slab's ``(N, 2)`` points,
     its centre within ``reach_m`` of the last circle's (``centre``, ``radius``); None when fewer than
-    ``min_points`` lie on it, or more than a few inside it (``_INSIDE_SHARE``: a trunk is solid, a view
+    ``min_points`` lie on it, or more than a few inside it (``SOLID_INSIDE_SHARE``: a trunk is solid, a view
     sees only its surface).
 
     Centres on a grid within reach are scored at the last radius (the trunk tapers by millimetres a slab):
@@ -165,7 +165,7 @@ def _slab_circle(
     distance = np.linalg.norm(xy - centre, axis=1)
     on_circle_count = int(np.count_nonzero(np.abs(distance - radius) < tolerance_m))
     inside = np.count_nonzero(distance < radius - tolerance_m)
-    if on_circle_count < min_points or inside > _INSIDE_SHARE * on_circle_count:
+    if on_circle_count < min_points or inside > SOLID_INSIDE_SHARE * on_circle_count:
         return None
     return centre, radius, on_circle_count
 

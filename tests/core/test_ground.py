@@ -210,12 +210,17 @@ def test_balls_laid_out_in_the_open_away_from_any_trunk_find_no_trunk_and_are_re
     assert frame.trunk_points > 0 and no_trunk_round_balls(frame) is None
 
 
-def test_the_trunk_is_the_upright_the_crown_stands_over_not_a_better_seen_post_beside_it() -> None:
-    """A trellis post 0.55 m from the trunk, inside the search round the balls, seen all round where the
-    trunk shows the camera only its front: the post's circle holds more bark, but the crown stands over
-    the trunk."""
+@pytest.mark.parametrize("crown_towards_post_m", [0.0, 0.2])
+def test_the_trunk_is_the_upright_the_crown_stands_over_not_a_better_seen_post_beside_it(
+    crown_towards_post_m: float,
+) -> None:
+    """A trellis post 0.55 m from the trunk, 2.8 m tall, inside the search round the balls, seen all round
+    where the trunk shows the camera only its front: the post's circle holds more bark, but the crown
+    stands over the trunk, even grown lopsided towards the post."""
     rng = np.random.default_rng(2)
     points_world, balls_world, trunk_xy = _scene(rng)
+    in_crown = points_world[:, 2] > 1.0
+    points_world[in_crown, 0] -= crown_towards_post_m
     on_trunk = np.abs(np.linalg.norm(points_world[:, :2] - trunk_xy, axis=1) - 0.07) < 1e-9
     front = points_world[:, 1] < trunk_xy[1] - 0.07 * np.sin(np.pi / 6)
     post_xy = trunk_xy + np.array([-0.55, 0.0])

@@ -126,7 +126,10 @@ def test_a_post_whose_foot_tall_grass_hides_is_found_from_above_the_grass() -> N
     poles = _poles(points)
 
     assert len(poles) == 1
-    assert _on(post[~hidden], poles).all()
+    # Inside the crown it is followed up as long as its surface shows: to its top, within a slab.
+    assert abs(poles[0].top_m - 2.2) <= PoleConfig().slab_m
+    seen = post[~hidden]
+    assert _on(seen[seen[:, 2] <= poles[0].top_m], poles).all()
 
 
 def test_the_trunk_a_leader_s_bare_tip_and_a_weed_are_no_poles() -> None:
@@ -177,3 +180,33 @@ def test_a_view_s_noisy_and_mixed_pixels_along_a_post_s_outline_are_the_post_s_n
     assert in_sight(scattered).all()
     assert not in_sight(leaves_in_front).any()
     assert not in_sight(beside).any()
+
+
+def test_a_sucker_and_a_second_stem_under_the_crown_are_no_poles() -> None:
+    # A root sucker 1.2 cm thick 0.3 m from the trunk reaching into the crown is thinner than any post; a
+    # second stem 0.4 m from the trunk, as thick, stands as near the crown's middle as the trunk does.
+    rng = np.random.default_rng(6)
+    parts = _tree(rng)
+    sucker = _cylinder(rng, np.array([0.0, 0.3]), 0.006, 0.12, 1.4, 1500)
+    stem = _cylinder(rng, np.array([-0.4, 0.0]), TRUNK_RADIUS_M, 0.12, CROWN_BASE_M + 0.3, 4000)
+    crown = parts["crown"] + np.array([-0.2, 0.0, 0.0])  # over both stems
+    points = np.vstack([parts["trunk"], crown, parts["tip"], sucker, stem])
+
+    poles = _poles(points)
+
+    assert not _on(sucker, poles).any()
+    assert not _on(stem, poles).any()
+
+
+def test_the_crown_above_a_post_s_top_stays_in_the_tree() -> None:
+    rng = np.random.default_rng(7)
+    parts = _tree(rng)
+    post = _cylinder(rng, POST_XY_M, 0.05, 0.12, 1.6, 5000)  # ends inside the crown
+    points = np.vstack([*parts.values(), post])
+    camera = np.array([0.0, -3.5, 1.3])
+
+    poles = _poles(points)
+
+    assert len(poles) == 1 and poles[0].top_m <= 1.6 + PoleConfig().slab_m
+    above = parts["crown"][parts["crown"][:, 2] > 1.7]
+    assert not pole_mask(above, poles, camera_m=camera, spread_m=PoleConfig().spread_m).any()
