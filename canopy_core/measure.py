@@ -542,12 +542,14 @@ def _tree_masks(
 ) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """Per view, the points of the tree: above the local ground's clearance, off the balls, off the trellis
     wires (each view's mixed pixels of a wire lie in the plane through the wire and its camera centre,
-    ``cameras_m``, world frame), not intruders; and every point's :class:`PointClass` (tree, ground, ball,
-    or other). ``beyond_points`` holds each view's points beyond the region of interest where the wires
-    run on (:func:`_beyond_roi_points`).
+    ``cameras_m``, world frame), off the poles standing in the region (trellis posts, found where the
+    trunk was found on its bark, ``trunk_radius_m``; see :mod:`canopy_core.poles`), not intruders; and every
+    point's :class:`PointClass` (tree, ground, ball, or other). ``beyond_points`` holds each view's points
+    beyond the region of interest where the wires run on (:func:`_beyond_roi_points`).
 
-    The ground height map, the wires and the intruders are decided on all views together, where each is most
-    complete. Wires go first: they join the crown to the posts and the neighbours they pass through.
+    The ground height map, the wires, the poles and the intruders are decided on all views together, where
+    each is most complete. Wires go first: they join the crown to the posts and the neighbours they pass
+    through, and would join a post's slabs to what stands beside it.
     """
     ground_map = ground_height_map(
         np.concatenate(roi_points), radius_m=config.roi.radius_m, band_m=config.ground.search_band_m

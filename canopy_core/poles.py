@@ -127,10 +127,10 @@ def find_poles(
     if points_m.shape[0] == 0:
         return ()
     slab_of = np.floor(points_m[:, 2] / config.slab_m).astype(np.int64)
-    chains = _straight_chains(points_m, slab_of, config)
+    chains, alone = _straight_chains(points_m, slab_of, config)
     poles = []
     for chain in chains:
-        pole = _grounded_pole(chain, chains, points_m, heights_m, slab_of, foot_below_m, config)
+        pole = _grounded_pole(chain, chains, points_m, heights_m, slab_of, alone, foot_below_m, config)
         if pole is None:
             continue
         axis_low = pole.axis.xy_at(points_m[chain.points, 2].min(keepdims=True))[0]
@@ -166,8 +166,11 @@ def pole_mask(
     return mask
 
 
-def _straight_chains(points_m: np.ndarray, slab_of: np.ndarray, config: PoleConfig) -> list[_Chain]:
-    """The straight, nearly vertical lines of compact groups standing alone, slab after slab.
+def _straight_chains(
+    points_m: np.ndarray, slab_of: np.ndarray, config: PoleConfig
+) -> tuple[list[_Chain], np.ndarray]:
+    """The straight, nearly vertical lines of compact groups standing alone, slab after slab, and the mask
+    of the points in any compact group (standing alone in their slab).
 
     Each slab's points are grouped on a grid of ``config.cell_m`` cells, cells within about
     ``config.isolation_m`` of each other joined; a group is compact when its points (but the farthest
@@ -197,8 +200,9 @@ def _straight_chains(points_m: np.ndarray, slab_of: np.ndarray, config: PoleConf
     compact = np.flatnonzero(
         (sizes >= _MIN_GROUP_POINTS) & (extent <= config.max_radius_m + config.tolerance_m)
     )
+    alone = np.isin(group, compact)
     if compact.size < 2:
-        return []
+        return [], alone
     lean = np.tan(np.radians(config.max_lean_deg))
     pairs = cKDTree(centres[compact]).query_pairs(
         r=config.tolerance_m + 2 * lean * config.slab_m, output_type="ndarray"
@@ -229,7 +233,7 @@ def _straight_chains(points_m: np.ndarray, slab_of: np.ndarray, config: PoleConf
                 lean_per_m=lean_per_m,
             )
         )
-    return chains
+    return chains, alone
 
 
 def _trimmed_groups(
@@ -302,6 +306,7 @@ def _grounded_pole(
     points_m: np.ndarray,
     heights_m: np.ndarray,
     slab_of: np.ndarray,
+    alone: np.ndarray,
     foot_below_m: float,
     config: PoleConfig,
 ) -> Pole | None:
@@ -309,8 +314,9 @@ def _grounded_pole(
     ``config.min_length_m`` long and ``config.min_radius_m`` thick, reaches down to within
     ``config.max_gap_m`` of ``foot_below_m`` above the ground (grass may hide a post's foot), and its column
     goes on down to below it through hidden spans up to ``config.max_gap_m``. It goes on up through any of
-    the other ``chains`` that continues its line above, and on from the highest of them as long as its
-    surface shows (:func:`_surface_top`). None otherwise."""
+    the other ``chains`` as thick that continues its line above (within the thickest pole's radius of it:
+    the chain's lean extrapolated over metres and the views' registration bend it by centimetres), and on
+    from the highest of them as long as its surface shows (:func:`_surface_top`). None otherwise."""
     if (chain.slabs[-1] - chain.slabs[0] + 1) * config.slab_m < config.min_length_m:
         return None  # too short to be told from a weed's stem
     if heights_m[chain.points].min() >= foot_below_m + config.max_gap_m:
@@ -326,25 +332,36 @@ def _grounded_pole(
     if heights_m[column & (slab_of >= lowest)].min() >= foot_below_m:
         return None  # its column ends above the ground: it hangs (a branch), or stands on something
     parts = [chain]
+    reach = config.max_radius_m + config.tolerance_m  # the lower stretch's lean and the registration's bend
     for other in sorted(chains, key=lambda c: int(c.slabs[0])):
         if other.slabs[0] <= parts[-1].slabs[-1]:
             continue  # below, or beside a part taken already
         along = chain.foot_xy_m + ((other.slabs[:, None] + 0.5) * config.slab_m) * chain.lean_per_m
-        if np.linalg.norm(other.centres_xy_m - along, axis=1).max() <= pole.radius_m:
+        in_line = np.linalg.norm(other.centres_xy_m - along, axis=1).max() <= reach
+        if (
+            in_line
+            and _pole_along([other], points_m, config, top_m=0.0).surface_radius_m >= config.min_radius_m
+        ):
             parts.append(other)
     joined = _pole_along(parts, points_m, config, top_m=float(np.inf))
     return _pole_along(
-        parts, points_m, config, top_m=_surface_top(joined, parts[-1], points_m, slab_of, config)
+        parts, points_m, config, top_m=_surface_top(joined, parts[-1], points_m, slab_of, alone, config)
     )
 
 
 def _surface_top(
-    pole: Pole, highest: _Chain, points_m: np.ndarray, slab_of: np.ndarray, config: PoleConfig
+    pole: Pole,
+    highest: _Chain,
+    points_m: np.ndarray,
+    slab_of: np.ndarray,
+    alone: np.ndarray,
+    config: PoleConfig,
 ) -> float:
     """How high ``pole`` goes: from its ``highest`` stretch alone, up through the slabs where its surface
-    shows (points on it, few inside it: a pole is solid; ``SOLID_INSIDE_SHARE``), spans where nothing
-    shows on it up to ``config.max_gap_m`` bridged (leaves in front of it); it ends where nothing shows
-    for longer, or where points stand inside it (leaves where it no longer stands)."""
+    shows (points on it, few inside it: a pole is solid; ``SOLID_INSIDE_SHARE``) or where what lies on it
+    stands alone (``alone``: a compact group, as the top of a post with the wires' clips and stubs on it),
+    spans where nothing shows on it up to ``config.max_gap_m`` bridged (leaves in front of it); it ends
+    where nothing shows for longer, or where leaves fill it."""
     distance = pole.axis.distance_m(points_m)
     near = distance <= pole.radius_m
     inside = distance < pole.surface_radius_m - pole.tolerance_m
@@ -357,7 +374,8 @@ def _surface_top(
             if hidden >= _gap_slabs(config):
                 break
             continue
-        if np.count_nonzero(shown & inside) > SOLID_INSIDE_SHARE * np.count_nonzero(shown & ~inside):
+        solid = np.count_nonzero(shown & inside) <= SOLID_INSIDE_SHARE * np.count_nonzero(shown & ~inside)
+        if not (solid or alone[shown].all()):
             break
         top, hidden = slab, 0
     return float((top + 1) * config.slab_m)

@@ -138,8 +138,8 @@ def build_orchard(
     neighbour on each side 3-4 m away along x, and (if ``posts``; a trellis with wires brings its own)
     trellis posts between them at least 1.6 m from the main trunk (``near_posts``: one on each side, 0.5-1.4 m
     from it and 2.0-3.8 m tall, within the crown's reach). Posts and neighbours stand upright whatever the
-    slope, and so does the main tree unless told to lean. ``near_posts`` draws as many numbers as without:
-    the same seed grows the same trees."""
+    slope, and so does the main tree unless told to lean. The trees are drawn before the posts: with
+    ``near_posts`` the same seed grows the same trees."""
     ground = random_ground(rng, slope_deg=slope_deg)
     shape = replace(random_tree_shape(rng), foot_lean_per_m=foot_lean_per_m)
     main_tree = build_tree(shape, rng, base=np.zeros(3))

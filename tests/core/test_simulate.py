@@ -884,7 +884,7 @@ def test_colours_of_no_points_are_none_not_an_opencv_error() -> None:
 
 def test_posts_near_the_tree_stand_within_the_crown_s_reach_round_the_same_tree() -> None:
     """``near_posts`` stands a post on each side 0.5-1.4 m from the trunk, 2.0-3.8 m tall (the trellis's
-    line posts there too), and draws as many numbers: the tree and its neighbours are the same."""
+    line posts there too), round the same tree and neighbours (drawn before the posts)."""
     for seed in range(6):
         plain = build_orchard(np.random.default_rng(seed))
         near = build_orchard(np.random.default_rng(seed), near_posts=True)
