@@ -708,9 +708,9 @@ def test_a_stake_standing_above_the_crown_fails_clearly_instead_of_raising_h(tmp
 @pytest.mark.parametrize(
     ("seed", "was"),
     [
-        (2112018, "posts 0.62 m and 1.12 m from the trunk in the crown: D +49 % (base 0.36 m for 1.16 m)"),
-        (2112003, "a post better seen than the trunk taken for it, the other post's top for H: +0.6 m"),
-        (2113039, "a post's top above the crown, its slabs spread by grazing pixels: H +4.7 %, D +9.9 %"),
+        (2112018, "posts 0.62 m and 1.12 m from the trunk, their tops above the crown: H +0.57 m, D +34 %"),
+        (2112003, "a post better seen than the trunk taken for it, the other post's top for H: +0.60 m"),
+        (2113039, "refused at the region's wall; this change's first version: H +4.7 %, D +9.9 %"),
     ],
 )
 def test_trellis_posts_the_crown_has_grown_round_are_not_measured_as_tree(
