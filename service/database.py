@@ -10,7 +10,10 @@ would each wait far longer than the writes take; the busy timeout is left to wri
 
 from __future__ import annotations
 
+import random
+import sqlite3
 import threading
+import time
 from collections.abc import Callable, Iterator
 from contextlib import AbstractContextManager, contextmanager, nullcontext
 from datetime import UTC, datetime
@@ -28,6 +31,23 @@ milliseconds, and a worker's lease renewal (every lease/3 s) must land before th
 T = TypeVar("T")
 
 
+def _to_wal(cursor: sqlite3.Cursor) -> None:
+    """Put the database in WAL mode (a no-op once it is). Processes opening a new database file at once
+    (an API and its workers started together, `canopy db upgrade` run by several) each switch it, and the
+    switch needs the file to themselves: SQLite answers "database is locked" at once, without the busy
+    timeout, to the one that would otherwise deadlock with another switching too. It is tried again, with
+    short random pauses, until the busy timeout is spent."""
+    deadline = time.monotonic() + _SQLITE_BUSY_TIMEOUT_MS / 1000
+    while True:
+        try:
+            cursor.execute("PRAGMA journal_mode=WAL")
+            return
+        except sqlite3.OperationalError as exc:
+            if "locked" not in str(exc) or time.monotonic() > deadline:
+                raise
+            time.sleep(random.uniform(0.005, 0.05))
+
+
 def _sqlite_engine(url: str, *, begin: str) -> Engine:
     engine = create_engine(
         url, connect_args={"check_same_thread": False, "timeout": _SQLITE_BUSY_TIMEOUT_MS / 1000}
@@ -38,12 +58,8 @@ def _sqlite_engine(url: str, *, begin: str) -> Engine:
         # Let SQLAlchemy's begin event, not the driver, decide when and how a transaction starts.
         dbapi_connection.isolation_level = None
         cursor = dbapi_connection.cursor()
-        for pragma in (
-            "journal_mode=WAL",
-            "synchronous=FULL",
-            "foreign_keys=ON",
-            f"busy_timeout={_SQLITE_BUSY_TIMEOUT_MS}",
-        ):
+        _to_wal(cursor)
+        for pragma in ("synchronous=FULL", "foreign_keys=ON", f"busy_timeout={_SQLITE_BUSY_TIMEOUT_MS}"):
             cursor.execute(f"PRAGMA {pragma}")
         cursor.close()
 
