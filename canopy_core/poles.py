@@ -19,7 +19,7 @@ of compact groups above that continues it (a post whose top stands above the cro
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy import ndimage
@@ -344,9 +344,7 @@ def _grounded_pole(
         ):
             parts.append(other)
     joined = _pole_along(parts, points_m, config, top_m=float(np.inf))
-    return _pole_along(
-        parts, points_m, config, top_m=_surface_top(joined, parts[-1], points_m, slab_of, alone, config)
-    )
+    return replace(joined, top_m=_surface_top(joined, parts[-1], points_m, slab_of, alone, config))
 
 
 def _surface_top(
