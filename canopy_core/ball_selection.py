@@ -966,21 +966,15 @@ def _likeliest_on_circles(
     if not points:
         return []
     normal = ground.normal / np.linalg.norm(ground.normal)
-    shifts = [np.zeros(3)]
-    shifts += [sign * _CIRCLE_SLACK_M * normal for sign in (-1.0, 1.0)]
-    estimates: list[np.ndarray] = []
-    outward: list[np.ndarray] = []
-    for point, _, centre in points:
-        radial = point - centre - ((point - centre) @ normal) * normal
-        radial /= max(float(np.linalg.norm(radial)), 1e-9)
-        outward.append(radial)
-    for radial_sign in (0.0, -1.0, 1.0):
-        for shift in shifts:
-            estimates.extend(
-                point + shift + radial_sign * _CIRCLE_SLACK_M * radial
-                for (point, _, _), radial in zip(points, outward, strict=True)
-            )
-    support = view.surface_support(np.array(estimates), config, color=color, ground=ground)
+    shifts = np.array([np.zeros(3), -_CIRCLE_SLACK_M * normal, _CIRCLE_SLACK_M * normal])
+    on_circle = np.array([point for point, _, _ in points])
+    outward = on_circle - np.array([centre for _, _, centre in points])
+    outward -= (outward @ normal)[:, None] * normal
+    outward /= np.maximum(np.linalg.norm(outward, axis=1), 1e-9)[:, None]
+    # Every point moved out, in or not at all, and up, down or not at all: nine rows of len(points) each.
+    radial_steps = np.array([0.0, -1.0, 1.0])[:, None, None, None] * _CIRCLE_SLACK_M * outward
+    estimates = ((on_circle + shifts[:, None, :])[None] + radial_steps).reshape(-1, 3)
+    support = view.surface_support(estimates, config, color=color, ground=ground)
     best = support.reshape(-1, len(points)).argmax(axis=0)
     support = support.reshape(-1, len(points)).max(axis=0)
     chosen: list[tuple[np.ndarray, float, np.ndarray]] = []

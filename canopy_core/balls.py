@@ -357,9 +357,10 @@ class ViewBallCandidates:
         if color is not None:
             likely = self.scene.likelihood[config.colors.index(color), nearby] >= _MAYBE_LIKELIHOOD
             may_be = likely | ~cloud.has_color[nearby]
-        close = cKDTree(points).query_ball_point(centres_m, r=radius + _SUPPORT_REACH_M)
-        owner = np.repeat(np.arange(centres_m.shape[0]), [len(indices) for indices in close])
-        neighbour = np.concatenate([np.asarray(indices, dtype=np.int64) for indices in close])
+        close = cKDTree(centres_m).sparse_distance_matrix(
+            cKDTree(points), radius + _SUPPORT_REACH_M, output_type="ndarray"
+        )  # every (centre, point) pair within reach, as arrays
+        owner, neighbour = close["i"].astype(np.int64), close["j"].astype(np.int64)
         distance = np.linalg.norm(points[neighbour] - centres_m[owner], axis=1)
         tolerance = _SUPPORT_SLACK * _range_tolerances(config.inlier_tolerance_m, centres_m)[owner]
         on = (np.abs(distance - radius) < tolerance) & may_be[neighbour]

@@ -54,6 +54,9 @@ _TRUNK_MIN_POINTS = 20
 """A trunk's slice (or the arc found in it) holds at least this many points."""
 _TRUNK_SCORED_POINTS = 4000
 """Each circle is scored on at most this many points of the slice, drawn at random."""
+_SUPPORT_BATCH = 64
+"""Circles whose bark support is counted together (a batch holds 64 times the scored points in each of
+its arrays)."""
 _RIVAL_SHARE = 0.5
 """A circle standing apart from the best-supported one (farther than a trunk's largest diameter) with at
 least this share of its bark is a rival upright: a trellis post near the trunk is as round and as well seen
@@ -410,10 +413,7 @@ def sees_trunk_near(points_m: np.ndarray, ground: GroundPlane, centre_m: np.ndar
     xy -= (centre_m - ground.point_m) @ axes
     centres, radii = _trunk_circles(xy, np.random.default_rng(0))
     close = np.linalg.norm(centres, axis=1) < within_m
-    return any(
-        _bark_support(xy, centre, radius) >= _TRUNK_MIN_POINTS
-        for centre, radius in zip(centres[close], radii[close], strict=True)
-    )
+    return bool(np.any(_bark_support(xy, centres[close], radii[close]) >= _TRUNK_MIN_POINTS))
 
 
 def _trunk_slice(
@@ -445,9 +445,7 @@ def _bark_circle(
     centres, radii = _trunk_circles(scored, rng)
     if centres.shape[0] == 0:
         return None
-    support = np.array(
-        [_bark_support(scored, centre, radius) for centre, radius in zip(centres, radii, strict=True)]
-    )
+    support = _bark_support(scored, centres, radii)
     best = int(np.argmax(support))
     apart = np.linalg.norm(centres - centres[best], axis=1) > 2 * TRUNK_RADIUS_RANGE_M[1]
     rivals = np.flatnonzero(apart & (support >= _RIVAL_SHARE * support[best]))
@@ -478,32 +476,64 @@ def crown_middle(above_xy: np.ndarray, uprights_xy: np.ndarray) -> np.ndarray | 
 
 def _trunk_circles(xy: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """Circles of a trunk's size through three nearby points of the slice: the first at random, the other two
-    within a trunk's diameter of it, so that all three lie on the trunk often even amid grass."""
-    reach = 2.0 * TRUNK_RADIUS_RANGE_M[1]
+    within a trunk's diameter of it, so that all three lie on the trunk often even amid grass.
+
+    The firsts' neighbours are found a batch at a time (``_SUPPORT_BATCH`` rows of a first against every
+    point, hundreds of them within reach of each), and only the two drawn from each are looked up."""
+    reach_sq = (2.0 * TRUNK_RADIUS_RANGE_M[1]) ** 2
     firsts = rng.choice(xy.shape[0], size=min(_TRUNK_HYPOTHESES, xy.shape[0]), replace=False)
-    nearby = cKDTree(xy).query_ball_point(xy[firsts], r=reach)
-    triples = [
-        [first, *rng.choice(near, size=2, replace=False)]
-        for first, near in zip(firsts, nearby, strict=True)
-        if len(near) >= 3
-    ]
+    triples: list[np.ndarray] = []  # (first, second, third) point indices, a batch at a time
+    for start in range(0, firsts.size, _SUPPORT_BATCH):
+        first = firsts[start : start + _SUPPORT_BATCH]
+        near = (xy[None, :, 0] - xy[first, None, 0]) ** 2 + (
+            xy[None, :, 1] - xy[first, None, 1]
+        ) ** 2 <= reach_sq
+        rank = np.cumsum(near, axis=1, dtype=np.int64)  # a point's rank among the first's neighbours, from 1
+        count = rank[:, -1]
+        rows = np.flatnonzero(count >= 3)
+        if not rows.size:
+            continue
+        drawn = np.array([rng.choice(int(count[row]), size=2, replace=False) for row in rows])
+        # The neighbour drawn k-th is the first point of rank k + 1; each row's ranks lifted above the
+        # last row's, the rows searched as one sorted array.
+        lift = np.arange(rows.size)[:, None] * (xy.shape[0] + 1)
+        found = np.searchsorted((rank[rows] + lift).ravel(), drawn + 1 + lift)
+        triples.append(np.column_stack([first[rows], found - np.arange(rows.size)[:, None] * xy.shape[0]]))
     if not triples:
         return np.zeros((0, 2)), np.zeros(0)
-    centres, radii = _circumcircles(xy[np.array(triples)])
+    centres, radii = _circumcircles(xy[np.concatenate(triples)])
     plausible = np.isfinite(radii) & (radii > TRUNK_RADIUS_RANGE_M[0]) & (radii < TRUNK_RADIUS_RANGE_M[1])
     return centres[plausible], radii[plausible]
 
 
-def _bark_support(points_m: np.ndarray, centre: np.ndarray, radius_m: float) -> int:
-    """How many points lie on a circle where nothing lies inside it, in stretches of ``_TRUNK_TOLERANCE_M``
-    along it: a trunk is solid, the views see its surface and nothing within. A circle through a clump of
-    grass, however many points its stems have, has other stems inside."""
-    offset = points_m - centre
-    distance = np.linalg.norm(offset, axis=1)
-    stretch = np.floor(np.arctan2(offset[:, 1], offset[:, 0]) * radius_m / _TRUNK_TOLERANCE_M)
-    on_circle = np.abs(distance - radius_m) < _TRUNK_TOLERANCE_M
-    shadowed = np.isin(stretch[on_circle], stretch[distance < radius_m - _TRUNK_TOLERANCE_M])
-    return int(np.count_nonzero(~shadowed))
+def _bark_support(points_m: np.ndarray, centres: np.ndarray, radii_m: np.ndarray) -> np.ndarray:
+    """For each of ``(K, 2)`` circle centres and ``(K,)`` radii, how many of the ``(N, 2)`` points lie on the
+    circle where nothing lies inside it, in stretches of ``_TRUNK_TOLERANCE_M`` along it: a trunk is solid,
+    the views see its surface and nothing within. A circle through a clump of grass, however many points
+    its stems have, has other stems inside.
+
+    The circles are judged a batch at a time (``_SUPPORT_BATCH``), each stretch a column of a table of
+    which stretches hold a point inside: one pass over the points for hundreds of circles."""
+    counts = np.zeros(centres.shape[0], dtype=np.int64)
+    # A stretch's number lies within ±pi r / tol, r below the largest trunk radius (as every circle tried):
+    # shifted by that bound, it indexes the table.
+    shift = int(np.ceil(np.pi * TRUNK_RADIUS_RANGE_M[1] / _TRUNK_TOLERANCE_M)) + 1
+    for start in range(0, centres.shape[0], _SUPPORT_BATCH):
+        centre, radius = centres[start : start + _SUPPORT_BATCH], radii_m[start : start + _SUPPORT_BATCH]
+        offset_x = points_m[None, :, 0] - centre[:, None, 0]
+        offset_y = points_m[None, :, 1] - centre[:, None, 1]
+        distance = np.sqrt(offset_x**2 + offset_y**2)
+        stretch = np.floor(np.arctan2(offset_y, offset_x) * radius[:, None] / _TRUNK_TOLERANCE_M)
+        stretch = (stretch + shift).astype(np.int64)
+        on_circle = np.abs(distance - radius[:, None]) < _TRUNK_TOLERANCE_M
+        inside = distance < radius[:, None] - _TRUNK_TOLERANCE_M
+        circle = np.broadcast_to(np.arange(centre.shape[0])[:, None], stretch.shape)
+        shadowed = np.zeros((centre.shape[0], 2 * shift + 1), dtype=bool)
+        shadowed[circle[inside], stretch[inside]] = True
+        counts[start : start + centre.shape[0]] = np.count_nonzero(
+            on_circle & ~shadowed[circle, stretch], axis=1
+        )
+    return counts
 
 
 def _circumcircles(triples: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
