@@ -239,11 +239,8 @@ class ViewBallCandidates:
         """
         if self.scene is None:
             return None
-        placed = config.model_copy(update={"min_completeness": config.min_completeness_where_placed})
         for index in (config.colors.index(color), None):
-            candidate = _candidate_at(
-                estimate_m, index, self.scene, placed, radius_sds=config.radius_error_sds_where_placed
-            )
+            candidate = self.scene.candidate_where_placed(estimate_m, index, config)
             if candidate is not None and candidate.problem is None:
                 if any(
                     np.linalg.norm(candidate.fit.center_m - c) < config.radius_m for c in self.ruled_out_m
@@ -688,6 +685,10 @@ class _Scene:
     focal_px: tuple[float, float]
     centre_px: tuple[float, float]
     """The depth camera's (fx, fy) and (cx, cy), read back from its points."""
+    placed_fits: dict[tuple[int, int | None, bytes], tuple[BallConfig, BallCandidate | None]] = field(
+        default_factory=dict, repr=False, compare=False
+    )
+    """What :meth:`candidate_where_placed` found, by config, colour and place."""
 
     @classmethod
     def of(cls, cloud: ViewCloud, config: BallConfig) -> _Scene:
@@ -718,6 +719,27 @@ class _Scene:
             focal_px=focal,
             centre_px=centre,
         )
+
+    def candidate_where_placed(
+        self, estimate_m: np.ndarray, color: int | None, config: BallConfig
+    ) -> BallCandidate | None:
+        """The sphere near ``estimate_m`` of colour ``color`` (its index; None for any colour), as sought
+        where the other views place a ball (:meth:`ViewBallCandidates.sphere_near`): with
+        ``config.min_completeness_where_placed`` and ``config.radius_error_sds_where_placed``.
+
+        The fit is deterministic, and the searches of a choice made again seek at the very places of the
+        choice before (a capture whose balls are chosen again five times asked 700 times for 220 places):
+        each place's answer is kept with the scene, for the same config object (held, so that its id
+        names it while kept)."""
+        key = (id(config), color, np.asarray(estimate_m, dtype=float).tobytes())
+        if key in self.placed_fits and self.placed_fits[key][0] is config:
+            return self.placed_fits[key][1]
+        placed = config.model_copy(update={"min_completeness": config.min_completeness_where_placed})
+        candidate = _candidate_at(
+            estimate_m, color, self, placed, radius_sds=config.radius_error_sds_where_placed
+        )
+        self.placed_fits[key] = (config, candidate)
+        return candidate
 
     def pixels_of_ball(self, centre_m: np.ndarray, radius_m: float) -> float:
         """How many pixels a ball of this radius and centre covers in the image."""
