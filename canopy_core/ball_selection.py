@@ -21,7 +21,7 @@ import numpy as np
 from canopy_core.balls import BallCandidate, Objection, ViewBallCandidates
 from canopy_core.config import BallConfig
 from canopy_core.errors import BallNotFound, RegistrationFailed
-from canopy_core.ground import CAMERA_UP, GroundFrame, GroundPlane, horizontal_distance, view_trunk_foot
+from canopy_core.ground import CAMERA_UP, GroundFrame, GroundPlane, horizontal_distance
 
 __all__ = [
     "BallChoice",
@@ -495,20 +495,13 @@ def _search_round_trunk(
     a look-alike may outscore the shared ball in either (2048017: straw in both). Returns, per view, the
     spheres added."""
     del per_view  # one shared ball suffices here
-    feet: dict[tuple[int, int], np.ndarray | None] = {}
 
     def foot(index: int, ball: BallCandidate) -> np.ndarray | None:
         """The trunk's foot in view ``index``, sought round ``ball``."""
-        if (index, id(ball)) not in feet:
-            ground, scene = grounds[index], views[index].scene
-            feet[index, id(ball)] = (
-                None
-                if ground is None or scene is None
-                else view_trunk_foot(
-                    scene.cloud.points_m, ground, ball.fit.center_m, config.max_trunk_distance_m
-                )
-            )
-        return feet[index, id(ball)]
+        ground, scene = grounds[index], views[index].scene
+        if ground is None or scene is None:
+            return None
+        return scene.trunk_foot(ground, ball.fit.center_m, config.max_trunk_distance_m)
 
     added: list[list[BallCandidate]] = [[] for _ in views]
     for target, (view, shortlist, ground) in enumerate(zip(views, shortlists, grounds, strict=True)):

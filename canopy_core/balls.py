@@ -28,7 +28,7 @@ from scipy.spatial import cKDTree
 from canopy_core.backproject import ViewCloud
 from canopy_core.config import BallConfig
 from canopy_core.errors import BallNotFound
-from canopy_core.ground import GroundPlane
+from canopy_core.ground import GroundPlane, view_trunk_foot
 from canopy_core.normals import scatter_about_mean, scatter_normals
 from canopy_core.spheres import SphereFit, ransac_centre, refine_sphere, sphere_coverage, sphere_inliers
 from canopy_core.voxels import occupied_voxels
@@ -689,6 +689,10 @@ class _Scene:
         default_factory=dict, repr=False, compare=False
     )
     """What :meth:`candidate_where_placed` found, by config, colour and place."""
+    trunk_feet: dict[tuple[bytes, float], np.ndarray | None] = field(
+        default_factory=dict, repr=False, compare=False
+    )
+    """What :meth:`trunk_foot` found, by ground plane, place and reach."""
 
     @classmethod
     def of(cls, cloud: ViewCloud, config: BallConfig) -> _Scene:
@@ -740,6 +744,17 @@ class _Scene:
         )
         self.placed_fits[key] = (config, candidate)
         return candidate
+
+    def trunk_foot(self, ground: GroundPlane, near_m: np.ndarray, reach_m: float) -> np.ndarray | None:
+        """Where the trunk within ``reach_m`` of ``near_m`` meets this view's ``ground`` plane
+        (:func:`canopy_core.ground.view_trunk_foot`), kept with the scene: the searches of a choice made
+        again seek the trunk round the same balls (a capture whose balls are chosen again five times
+        asked 70 times for 15)."""
+        place = (ground.point_m, ground.normal, near_m)
+        key = (b"".join(np.asarray(a, dtype=float).tobytes() for a in place), reach_m)
+        if key not in self.trunk_feet:
+            self.trunk_feet[key] = view_trunk_foot(self.cloud.points_m, ground, near_m, reach_m)
+        return self.trunk_feet[key]
 
     def pixels_of_ball(self, centre_m: np.ndarray, radius_m: float) -> float:
         """How many pixels a ball of this radius and centre covers in the image."""
