@@ -962,8 +962,9 @@ def _likeliest_on_circles(
     shifts = np.array([np.zeros(3), -_CIRCLE_SLACK_M * normal, _CIRCLE_SLACK_M * normal])
     on_circle = np.array([point for point, _, _ in points])
     outward = on_circle - np.array([centre for _, _, centre in points])
-    outward -= (outward @ normal)[:, None] * normal
-    outward /= np.maximum(np.linalg.norm(outward, axis=1), 1e-9)[:, None]
+    # Row by row, as one point's dot product and norm round (a whole array's go through other routines).
+    outward -= np.array([row @ normal for row in outward])[:, None] * normal
+    outward /= np.maximum(np.array([np.linalg.norm(row) for row in outward]), 1e-9)[:, None]
     # Every point moved out, in or not at all, and up, down or not at all: nine rows of len(points) each.
     radial_steps = np.array([0.0, -1.0, 1.0])[:, None, None, None] * _CIRCLE_SLACK_M * outward
     estimates = ((on_circle + shifts[:, None, :])[None] + radial_steps).reshape(-1, 3)

@@ -54,9 +54,9 @@ _TRUNK_MIN_POINTS = 20
 """A trunk's slice (or the arc found in it) holds at least this many points."""
 _TRUNK_SCORED_POINTS = 4000
 """Each circle is scored on at most this many points of the slice, drawn at random."""
-_SUPPORT_BATCH = 64
-"""Circles whose bark support is counted together (a batch holds 64 times the scored points in each of
-its arrays)."""
+_BATCH_ELEMENTS = 256_000
+"""Circles (or first points of circles) are judged in batches of about this many circle-point pairs, so
+that each batch's arrays stay a few megabytes however many points a slice holds."""
 _RIVAL_SHARE = 0.5
 """A circle standing apart from the best-supported one (farther than a trunk's largest diameter) with at
 least this share of its bark is a rival upright: a trellis post near the trunk is as round and as well seen
@@ -478,13 +478,14 @@ def _trunk_circles(xy: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray
     """Circles of a trunk's size through three nearby points of the slice: the first at random, the other two
     within a trunk's diameter of it, so that all three lie on the trunk often even amid grass.
 
-    The firsts' neighbours are found a batch at a time (``_SUPPORT_BATCH`` rows of a first against every
-    point, hundreds of them within reach of each), and only the two drawn from each are looked up."""
+    The firsts' neighbours are found a batch at a time (about ``_BATCH_ELEMENTS`` pairs of a first and a
+    point, hundreds within reach of each first), and only the two drawn from each are looked up."""
     reach_sq = (2.0 * TRUNK_RADIUS_RANGE_M[1]) ** 2
     firsts = rng.choice(xy.shape[0], size=min(_TRUNK_HYPOTHESES, xy.shape[0]), replace=False)
     triples: list[np.ndarray] = []  # (first, second, third) point indices, a batch at a time
-    for start in range(0, firsts.size, _SUPPORT_BATCH):
-        first = firsts[start : start + _SUPPORT_BATCH]
+    batch = max(1, _BATCH_ELEMENTS // xy.shape[0])
+    for start in range(0, firsts.size, batch):
+        first = firsts[start : start + batch]
         near = (xy[None, :, 0] - xy[first, None, 0]) ** 2 + (
             xy[None, :, 1] - xy[first, None, 1]
         ) ** 2 <= reach_sq
@@ -512,14 +513,15 @@ def _bark_support(points_m: np.ndarray, centres: np.ndarray, radii_m: np.ndarray
     the views see its surface and nothing within. A circle through a clump of grass, however many points
     its stems have, has other stems inside.
 
-    The circles are judged a batch at a time (``_SUPPORT_BATCH``), each stretch a column of a table of
-    which stretches hold a point inside: one pass over the points for hundreds of circles."""
+    The circles are judged a batch at a time (``_BATCH_ELEMENTS``), each stretch a column of a table of
+    which stretches hold a point inside: one pass over the points for a batch of circles."""
     counts = np.zeros(centres.shape[0], dtype=np.int64)
     # A stretch's number lies within ±pi r / tol, r below the largest trunk radius (as every circle tried):
     # shifted by that bound, it indexes the table.
     shift = int(np.ceil(np.pi * TRUNK_RADIUS_RANGE_M[1] / _TRUNK_TOLERANCE_M)) + 1
-    for start in range(0, centres.shape[0], _SUPPORT_BATCH):
-        centre, radius = centres[start : start + _SUPPORT_BATCH], radii_m[start : start + _SUPPORT_BATCH]
+    batch = max(1, _BATCH_ELEMENTS // max(points_m.shape[0], 1))
+    for start in range(0, centres.shape[0], batch):
+        centre, radius = centres[start : start + batch], radii_m[start : start + batch]
         offset_x = points_m[None, :, 0] - centre[:, None, 0]
         offset_y = points_m[None, :, 1] - centre[:, None, 1]
         distance = np.sqrt(offset_x**2 + offset_y**2)
