@@ -460,15 +460,15 @@ def _bark_circle(
     return *fit_circle(on_arc), int(on_arc.shape[0])
 
 
-def crown_middle(above_xy: np.ndarray, uprights_xy: np.ndarray) -> np.ndarray | None:
+def crown_middle(above_xy: np.ndarray, uprights_xy: np.ndarray, *, min_points: int = 1) -> np.ndarray | None:
     """The middle of where the ``(N, 2)`` points above the trunk's height stand, without those within
     ``UPRIGHT_CLEARANCE_M`` of any of the ``(K, 2)`` uprights that may be the trunk: halfway between the
     5th and 95th percentiles along x and y, the middle of what they span. Not their mean or median: each
     view sees its near side of the crown more densely than the other's, and a vase crown is a hollow shell.
-    None when nothing else stands there."""
+    None when fewer than ``min_points`` stand there."""
     distance, _ = cKDTree(uprights_xy).query(above_xy, distance_upper_bound=UPRIGHT_CLEARANCE_M)
     clear = above_xy[~np.isfinite(distance)]
-    if not clear.shape[0]:
+    if clear.shape[0] < max(min_points, 1):
         return None
     low, high = np.percentile(clear, [5, 95], axis=0)
     return (low + high) / 2

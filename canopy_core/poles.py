@@ -39,6 +39,12 @@ _COMPACT_SHARE = 0.9
 """A slab of a pole is compact when this share of its points lie within the thickest pole's radius of its
 centre: the rest may be its noisiest pixels, at grazing incidence on its outline, scattered along the rays
 by a decimetre or more."""
+_EXTRAPOLATION_SDS = 2.0
+"""A stretch continues a pole's line above when its centres lie within this many standard errors of that
+line where they stand (:func:`_extrapolation_sd`), beyond the thickest pole's radius and the tolerance."""
+_MIN_CROWN_POINTS = 100
+"""Fewer points than this standing above a pole's lowest stretch alone, off the uprights, are no crown over
+it: a trellis wire's pixels, a neighbour's twig (a crown shows thousands)."""
 _MIN_CHAIN_SLABS = 3
 """A line of fewer groups is not known to be straight. Lines this short are taken only as the rest of a pole
 found from the ground (the top of a post standing a little above the crown)."""
@@ -128,7 +134,7 @@ def find_poles(
         return ()
     slab_of = np.floor(points_m[:, 2] / config.slab_m).astype(np.int64)
     chains, alone = _straight_chains(points_m, slab_of, config)
-    poles = []
+    grounded = []
     for chain in chains:
         pole = _grounded_pole(chain, chains, points_m, heights_m, slab_of, alone, foot_below_m, config)
         if pole is None:
@@ -136,19 +142,27 @@ def find_poles(
         axis_low = pole.axis.xy_at(points_m[chain.points, 2].min(keepdims=True))[0]
         if np.linalg.norm(axis_low - trunk_xy_m) < trunk_radius_m + config.min_trunk_gap_m:
             continue  # the trunk itself, or too near it to be told from it
-        if not _trunk_clearly_under_crown(pole, points_m, trunk_xy_m):
-            continue  # maybe the tree's own trunk (the trunk found a post), or a second stem
-        poles.append(pole)
-    return tuple(poles)
+        grounded.append(pole)
+    uprights = np.vstack([trunk_xy_m, *(pole.axis.centres_xy_m for pole in grounded)])
+    # Not the tree's own trunk (the trunk found a post), nor a second stem, however lopsided the crown.
+    return tuple(
+        pole for pole in grounded if _trunk_clearly_under_crown(pole, points_m, trunk_xy_m, uprights)
+    )
 
 
-def _trunk_clearly_under_crown(pole: Pole, points_m: np.ndarray, trunk_xy_m: np.ndarray) -> bool:
+def _trunk_clearly_under_crown(
+    pole: Pole, points_m: np.ndarray, trunk_xy_m: np.ndarray, uprights_xy_m: np.ndarray
+) -> bool:
     """Whether the trunk stands clearly nearer than ``pole`` the middle of what stands above the pole's
     lowest stretch alone (:func:`canopy_core.ground.crown_middle`, ``CLEARLY_NEARER``), as it does under
     the crown it carries; else the pole may be the tree's own trunk, were the trunk found on a post, or a
-    second stem, and is left in the tree. True when nothing else stands above."""
+    second stem, and is left in the tree. What stands round the ``uprights_xy_m`` (the trunk and every
+    pole found, each axis's centres) is no crown there: a post 1.4 m from the trunk, 3.5 m tall, put the
+    middle of a crown 1.7 m wide 0.5 m off its trunk, half-way to it, and another post on the other side
+    was left in the tree. True when less than ``_MIN_CROWN_POINTS`` stand above (a post standing alone
+    nearly to the crown's top has only wire pixels above its stretch)."""
     above = points_m[points_m[:, 2] > pole.alone_m[0][1]]
-    middle = crown_middle(above[:, :2], np.vstack([trunk_xy_m, pole.axis.centres_xy_m]))
+    middle = crown_middle(above[:, :2], uprights_xy_m, min_points=_MIN_CROWN_POINTS)
     if middle is None:
         return True
     at_middle = pole.axis.xy_at(np.median(above[:, 2], keepdims=True))[0]
@@ -221,19 +235,50 @@ def _straight_chains(
             continue  # two groups in one slab: no single line (a fork of branches); or too few
         ascending = np.argsort(slabs)
         groups, slabs = groups[ascending], slabs[ascending]
-        foot, lean_per_m, rms = _line((slabs + 0.5) * config.slab_m, centres[groups])
-        if rms > config.tolerance_m or np.linalg.norm(lean_per_m) > lean:
-            continue
-        chains.append(
-            _Chain(
-                slabs=slabs,
-                centres_xy_m=centres[groups],
-                points=np.concatenate([order[starts[g] : starts[g] + kept[g]] for g in groups]),
-                foot_xy_m=foot,
-                lean_per_m=lean_per_m,
+        for low, high in _straight_stretches((slabs + 0.5) * config.slab_m, centres[groups], config):
+            stretch = groups[low:high]
+            foot, lean_per_m, _ = _line((slabs[low:high] + 0.5) * config.slab_m, centres[stretch])
+            chains.append(
+                _Chain(
+                    slabs=slabs[low:high],
+                    centres_xy_m=centres[stretch],
+                    points=np.concatenate([order[starts[g] : starts[g] + kept[g]] for g in stretch]),
+                    foot_xy_m=foot,
+                    lean_per_m=lean_per_m,
+                )
             )
-        )
     return chains, alone
+
+
+def _straight_stretches(
+    heights_m: np.ndarray, centres_xy_m: np.ndarray, config: PoleConfig
+) -> list[tuple[int, int]]:
+    """The stretches (``[low, high)`` of the ``(K,)`` ascending heights and their ``(K, 2)`` centres) that
+    stand in straight lines: within ``config.tolerance_m`` (RMS) of a line leaning at most
+    ``config.max_lean_deg``, each ``_MIN_CHAIN_SLABS`` long at least. The whole, when it is straight; else
+    split where the worse side's line fits best, and each side the same way.
+
+    Where one view stops seeing a round pole (hidden behind leaves, or out of its frame), its slabs' centres
+    move towards the view that still sees it, by up to two thirds of its radius: a post seen from both
+    sides below and from one above the crown (held-out near posts 2119029, 1.1 m above a crown 2.2 m tall)
+    is two straight stretches 4 cm apart, not one line."""
+    count = heights_m.size
+    if count < _MIN_CHAIN_SLABS:
+        return []
+    _, lean_per_m, rms = _line(heights_m, centres_xy_m)
+    if rms <= config.tolerance_m and np.linalg.norm(lean_per_m) <= np.tan(np.radians(config.max_lean_deg)):
+        return [(0, count)]
+    splits = range(_MIN_CHAIN_SLABS, count - _MIN_CHAIN_SLABS + 1)
+    if not splits:
+        return []
+    worse = [
+        max(_line(heights_m[:k], centres_xy_m[:k])[2], _line(heights_m[k:], centres_xy_m[k:])[2])
+        for k in splits
+    ]
+    split = splits[int(np.argmin(worse))]
+    below = _straight_stretches(heights_m[:split], centres_xy_m[:split], config)
+    above = _straight_stretches(heights_m[split:], centres_xy_m[split:], config)
+    return below + [(low + split, high + split) for low, high in above]
 
 
 def _trimmed_groups(
@@ -272,6 +317,14 @@ def _line(heights_m: np.ndarray, centres_xy_m: np.ndarray) -> tuple[np.ndarray, 
     fit, *_ = np.linalg.lstsq(design, centres_xy_m, rcond=None)
     residual = np.linalg.norm(centres_xy_m - design @ fit, axis=1)
     return fit[0], fit[1], float(np.sqrt(np.mean(residual**2)))
+
+
+def _extrapolation_sd(heights_m: np.ndarray, at_m: np.ndarray, sd_m: float) -> np.ndarray:
+    """The standard error at heights ``at_m`` of the least-squares line (:func:`_line`) through centres at
+    ``heights_m``, each off the pole's axis by ``sd_m`` (standard deviation): the mean's error and the
+    lean's, carried from the centres' mean height."""
+    spread = np.sum((heights_m - heights_m.mean()) ** 2)
+    return sd_m * np.sqrt(1.0 / heights_m.size + (at_m - heights_m.mean()) ** 2 / spread)
 
 
 def _pole_along(parts: list[_Chain], points_m: np.ndarray, config: PoleConfig, *, top_m: float) -> Pole:
@@ -314,9 +367,11 @@ def _grounded_pole(
     ``config.min_length_m`` long and ``config.min_radius_m`` thick, reaches down to within
     ``config.max_gap_m`` of ``foot_below_m`` above the ground (grass may hide a post's foot), and its column
     goes on down to below it through hidden spans up to ``config.max_gap_m``. It goes on up through any of
-    the other ``chains`` as thick that continues its line above (within the thickest pole's radius of it:
-    the chain's lean extrapolated over metres and the views' registration bend it by centimetres), and on
-    from the highest of them as long as its surface shows (:func:`_surface_top`). None otherwise."""
+    the other ``chains`` as thick that continues its line above (within the thickest pole's radius and the
+    views' registration's bend of the line through every stretch taken so far, extrapolated up, and two
+    standard errors of that line there: a short stretch's lean carried over metres is uncertain by
+    decimetres; 0.5 m of a post by its foot put its line 0.17 m off the post at 3.2 m), and on from the
+    highest of them as long as its surface shows (:func:`_surface_top`). None otherwise."""
     if (chain.slabs[-1] - chain.slabs[0] + 1) * config.slab_m < config.min_length_m:
         return None  # too short to be told from a weed's stem
     if heights_m[chain.points].min() >= foot_below_m + config.max_gap_m:
@@ -332,12 +387,19 @@ def _grounded_pole(
     if heights_m[column & (slab_of >= lowest)].min() >= foot_below_m:
         return None  # its column ends above the ground: it hangs (a branch), or stands on something
     parts = [chain]
-    reach = config.max_radius_m + config.tolerance_m  # the lower stretch's lean and the registration's bend
     for other in sorted(chains, key=lambda c: int(c.slabs[0])):
         if other.slabs[0] <= parts[-1].slabs[-1]:
             continue  # below, or beside a part taken already
-        along = chain.foot_xy_m + ((other.slabs[:, None] + 0.5) * config.slab_m) * chain.lean_per_m
-        in_line = np.linalg.norm(other.centres_xy_m - along, axis=1).max() <= reach
+        heights = np.concatenate([(part.slabs + 0.5) * config.slab_m for part in parts])
+        foot, lean_per_m, _ = _line(heights, np.concatenate([part.centres_xy_m for part in parts]))
+        other_heights = (other.slabs + 0.5) * config.slab_m
+        along = foot + other_heights[:, None] * lean_per_m
+        reach = (
+            config.max_radius_m
+            + config.tolerance_m
+            + _EXTRAPOLATION_SDS * _extrapolation_sd(heights, other_heights, config.tolerance_m)
+        )
+        in_line = (np.linalg.norm(other.centres_xy_m - along, axis=1) <= reach).all()
         if (
             in_line
             and _pole_along([other], points_m, config, top_m=0.0).surface_radius_m >= config.min_radius_m

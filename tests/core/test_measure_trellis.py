@@ -135,6 +135,9 @@ def test_a_stake_standing_above_the_crown_fails_clearly_instead_of_raising_h(tmp
         (2112018, "posts 0.62 m and 1.12 m from the trunk, their tops above the crown: H +0.57 m, D +34 %"),
         (2112003, "a post better seen than the trunk taken for it, the other post's top for H: +0.60 m"),
         (2113039, "refused at the region's wall; this change's first version: H +4.7 %, D +9.9 %"),
+        (2115021, "a post's top seen from one side, off the line of its short stretch by its foot: H +8 %"),
+        (2117045, "a post left in the tree, the crown's middle pulled off by the other post: refused"),
+        (2119029, "a post seen from one side higher up, its stretch there not one line: H +1.09 m"),
     ],
 )
 def test_trellis_posts_the_crown_has_grown_round_are_not_measured_as_tree(
