@@ -46,8 +46,8 @@ _MIN_CROWN_POINTS = 100
 """Fewer points than this standing above a pole's lowest stretch alone, off the uprights, are no crown over
 it: a trellis wire's pixels, a neighbour's twig (a crown shows thousands)."""
 _MIN_CHAIN_SLABS = 3
-"""A line of fewer groups is not known to be straight. Lines this short are taken only as the rest of a pole
-found from the ground (the top of a post standing a little above the crown)."""
+"""A straight stretch of fewer groups is not known to be straight. Stretches this short are taken only as the
+rest of a pole found from the ground (the top of a post standing a little above the crown)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -110,6 +110,9 @@ class _Chain:
     """Indices of the chain's points (of each group, the ``_COMPACT_SHARE`` nearest its centre)."""
     foot_xy_m: np.ndarray
     lean_per_m: np.ndarray
+    from_foot: bool
+    """Whether it begins at the lowest slab of its line of groups; a stretch split off above a bend in
+    that line (see :func:`_straight_stretches`) is not the foot of a pole."""
 
 
 def find_poles(
@@ -136,7 +139,18 @@ def find_poles(
     chains, alone = _straight_chains(points_m, slab_of, config)
     grounded = []
     for chain in chains:
-        pole = _grounded_pole(chain, chains, points_m, heights_m, slab_of, alone, foot_below_m, config)
+        pole = _grounded_pole(
+            chain,
+            chains,
+            points_m,
+            heights_m,
+            slab_of,
+            alone,
+            foot_below_m,
+            config,
+            trunk_xy_m,
+            trunk_radius_m,
+        )
         if pole is None:
             continue
         axis_low = pole.axis.xy_at(points_m[chain.points, 2].min(keepdims=True))[0]
@@ -159,8 +173,9 @@ def _trunk_clearly_under_crown(
     second stem, and is left in the tree. What stands round the ``uprights_xy_m`` (the trunk and every
     pole found, each axis's centres) is no crown there: a post 1.4 m from the trunk, 3.5 m tall, put the
     middle of a crown 1.7 m wide 0.5 m off its trunk, half-way to it, and another post on the other side
-    was left in the tree. True when less than ``_MIN_CROWN_POINTS`` stand above (a post standing alone
-    nearly to the crown's top has only wire pixels above its stretch)."""
+    was left in the tree. True when fewer than ``_MIN_CROWN_POINTS`` points, anywhere in the region, stand
+    above that stretch off the uprights (a post standing alone nearly to the crown's top has only wire
+    pixels above it)."""
     above = points_m[points_m[:, 2] > pole.alone_m[0][1]]
     middle = crown_middle(above[:, :2], uprights_xy_m, min_points=_MIN_CROWN_POINTS)
     if middle is None:
@@ -190,8 +205,8 @@ def _straight_chains(
     ``config.isolation_m`` of each other joined; a group is compact when its points (but the farthest
     tenth, ``_COMPACT_SHARE``) lie within ``config.max_radius_m`` (and the tolerance) of its centre (see
     :func:`_trimmed_groups`). Groups of slabs one or two apart whose centres stand within the lean's reach
-    join a chain; a chain is kept when its centres lie within ``config.tolerance_m`` (RMS) of a line
-    leaning at most ``config.max_lean_deg``.
+    join a line of groups; its straight stretches (:func:`_straight_stretches`: within ``config.tolerance_m``
+    (RMS) of a line leaning at most ``config.max_lean_deg``) are the chains.
     """
     cell = np.floor(points_m[:, :2] / config.cell_m).astype(np.int64)
     cell -= cell.min(axis=0)
@@ -245,6 +260,7 @@ def _straight_chains(
                     points=np.concatenate([order[starts[g] : starts[g] + kept[g]] for g in stretch]),
                     foot_xy_m=foot,
                     lean_per_m=lean_per_m,
+                    from_foot=low == 0,
                 )
             )
     return chains, alone
@@ -362,16 +378,22 @@ def _grounded_pole(
     alone: np.ndarray,
     foot_below_m: float,
     config: PoleConfig,
+    trunk_xy_m: np.ndarray,
+    trunk_radius_m: float,
 ) -> Pole | None:
-    """The pole ``chain`` is part of, if it is one and rises from the ground: the chain is at least
-    ``config.min_length_m`` long and ``config.min_radius_m`` thick, reaches down to within
-    ``config.max_gap_m`` of ``foot_below_m`` above the ground (grass may hide a post's foot), and its column
-    goes on down to below it through hidden spans up to ``config.max_gap_m``. It goes on up through any of
-    the other ``chains`` as thick that continues its line above (within the thickest pole's radius and the
-    views' registration's bend of the line through every stretch taken so far, extrapolated up, and two
-    standard errors of that line there: a short stretch's lean carried over metres is uncertain by
-    decimetres; 0.5 m of a post by its foot put its line 0.17 m off the post at 3.2 m), and on from the
+    """The pole ``chain`` is part of, if it is one and rises from the ground: the chain is the foot of its
+    line of groups (no bend below it), at least ``config.min_length_m`` long and ``config.min_radius_m``
+    thick, reaches down to within ``config.max_gap_m`` of ``foot_below_m`` above the ground (grass may hide
+    a post's foot), and its column goes on down to below it through hidden spans up to
+    ``config.max_gap_m``. It goes on up through any of the other ``chains`` as thick that continues its line
+    above (within the thickest pole's radius and the views' registration's bend of the line through every
+    stretch taken so far, extrapolated up, and two standard errors of that line there: a short stretch's
+    lean carried over metres is uncertain by decimetres; 0.5 m of a post by its foot put its line 0.17 m off
+    the post at 3.2 m) and stands outside the trunk's bark by ``config.min_trunk_gap_m`` (the trunk's foot
+    ``trunk_xy_m``, radius ``trunk_radius_m``: what stands over it is the tree's leader), and on from the
     highest of them as long as its surface shows (:func:`_surface_top`). None otherwise."""
+    if not chain.from_foot:
+        return None  # above a bend of its line (a trunk or a stem leaning low down): not where a pole stands
     if (chain.slabs[-1] - chain.slabs[0] + 1) * config.slab_m < config.min_length_m:
         return None  # too short to be told from a weed's stem
     if heights_m[chain.points].min() >= foot_below_m + config.max_gap_m:
@@ -387,11 +409,16 @@ def _grounded_pole(
     if heights_m[column & (slab_of >= lowest)].min() >= foot_below_m:
         return None  # its column ends above the ground: it hangs (a branch), or stands on something
     parts = [chain]
+    heights = (chain.slabs + 0.5) * config.slab_m
+    foot, lean_per_m = chain.foot_xy_m, chain.lean_per_m
     for other in sorted(chains, key=lambda c: int(c.slabs[0])):
         if other.slabs[0] <= parts[-1].slabs[-1]:
             continue  # below, or beside a part taken already
-        heights = np.concatenate([(part.slabs + 0.5) * config.slab_m for part in parts])
-        foot, lean_per_m, _ = _line(heights, np.concatenate([part.centres_xy_m for part in parts]))
+        if (
+            np.linalg.norm(other.centres_xy_m - trunk_xy_m, axis=1).min()
+            < trunk_radius_m + config.min_trunk_gap_m
+        ):
+            continue  # over the trunk's foot: the tree's leader
         other_heights = (other.slabs + 0.5) * config.slab_m
         along = foot + other_heights[:, None] * lean_per_m
         reach = (
@@ -399,12 +426,12 @@ def _grounded_pole(
             + config.tolerance_m
             + _EXTRAPOLATION_SDS * _extrapolation_sd(heights, other_heights, config.tolerance_m)
         )
-        in_line = (np.linalg.norm(other.centres_xy_m - along, axis=1) <= reach).all()
-        if (
-            in_line
-            and _pole_along([other], points_m, config, top_m=0.0).surface_radius_m >= config.min_radius_m
-        ):
+        if (np.linalg.norm(other.centres_xy_m - along, axis=1) <= reach).all() and _pole_along(
+            [other], points_m, config, top_m=0.0
+        ).surface_radius_m >= config.min_radius_m:
             parts.append(other)
+            heights = np.concatenate([heights, other_heights])
+            foot, lean_per_m, _ = _line(heights, np.concatenate([part.centres_xy_m for part in parts]))
     joined = _pole_along(parts, points_m, config, top_m=float(np.inf))
     return replace(joined, top_m=_surface_top(joined, parts[-1], points_m, slab_of, alone, config))
 
