@@ -154,7 +154,7 @@ def find_poles(
         if pole is None:
             continue
         axis_low = pole.axis.xy_at(points_m[chain.points, 2].min(keepdims=True))[0]
-        if np.linalg.norm(axis_low - trunk_xy_m) < trunk_radius_m + config.min_trunk_gap_m:
+        if _by_trunk(axis_low[None], trunk_xy_m, trunk_radius_m, config):
             continue  # the trunk itself, or too near it to be told from it
         grounded.append(pole)
     uprights = np.vstack([trunk_xy_m, *(pole.axis.centres_xy_m for pole in grounded)])
@@ -162,6 +162,12 @@ def find_poles(
     return tuple(
         pole for pole in grounded if _trunk_clearly_under_crown(pole, points_m, trunk_xy_m, uprights)
     )
+
+
+def _by_trunk(xy_m: np.ndarray, trunk_xy_m: np.ndarray, trunk_radius_m: float, config: PoleConfig) -> bool:
+    """Whether any of the ``(K, 2)`` positions stands within ``config.min_trunk_gap_m`` of the trunk's bark
+    (its foot ``trunk_xy_m``, radius ``trunk_radius_m``): too near to be told from the trunk."""
+    return bool(np.linalg.norm(xy_m - trunk_xy_m, axis=1).min() < trunk_radius_m + config.min_trunk_gap_m)
 
 
 def _trunk_clearly_under_crown(
@@ -250,9 +256,10 @@ def _straight_chains(
             continue  # two groups in one slab: no single line (a fork of branches); or too few
         ascending = np.argsort(slabs)
         groups, slabs = groups[ascending], slabs[ascending]
-        for low, high in _straight_stretches((slabs + 0.5) * config.slab_m, centres[groups], config):
+        for low, high, foot, lean_per_m in _straight_stretches(
+            (slabs + 0.5) * config.slab_m, centres[groups], config
+        ):
             stretch = groups[low:high]
-            foot, lean_per_m, _ = _line((slabs[low:high] + 0.5) * config.slab_m, centres[stretch])
             chains.append(
                 _Chain(
                     slabs=slabs[low:high],
@@ -268,11 +275,12 @@ def _straight_chains(
 
 def _straight_stretches(
     heights_m: np.ndarray, centres_xy_m: np.ndarray, config: PoleConfig
-) -> list[tuple[int, int]]:
+) -> list[tuple[int, int, np.ndarray, np.ndarray]]:
     """The stretches (``[low, high)`` of the ``(K,)`` ascending heights and their ``(K, 2)`` centres) that
-    stand in straight lines: within ``config.tolerance_m`` (RMS) of a line leaning at most
-    ``config.max_lean_deg``, each ``_MIN_CHAIN_SLABS`` long at least. The whole, when it is straight; else
-    split where the worse side's line fits best, and each side the same way.
+    stand in straight lines, each with its line's foot and lean (:func:`_line`): within
+    ``config.tolerance_m`` (RMS) of a line leaning at most ``config.max_lean_deg``, each
+    ``_MIN_CHAIN_SLABS`` long at least. The whole, when it is straight; else split where the worse side's
+    line fits best, and each side the same way.
 
     Where one view stops seeing a round pole (hidden behind leaves, or out of its frame), its slabs' centres
     move towards the view that still sees it, by up to two thirds of its radius: a post seen from both
@@ -281,9 +289,9 @@ def _straight_stretches(
     count = heights_m.size
     if count < _MIN_CHAIN_SLABS:
         return []
-    _, lean_per_m, rms = _line(heights_m, centres_xy_m)
+    foot, lean_per_m, rms = _line(heights_m, centres_xy_m)
     if rms <= config.tolerance_m and np.linalg.norm(lean_per_m) <= np.tan(np.radians(config.max_lean_deg)):
-        return [(0, count)]
+        return [(0, count, foot, lean_per_m)]
     splits = range(_MIN_CHAIN_SLABS, count - _MIN_CHAIN_SLABS + 1)
     if not splits:
         return []
@@ -294,7 +302,7 @@ def _straight_stretches(
     split = splits[int(np.argmin(worse))]
     below = _straight_stretches(heights_m[:split], centres_xy_m[:split], config)
     above = _straight_stretches(heights_m[split:], centres_xy_m[split:], config)
-    return below + [(low + split, high + split) for low, high in above]
+    return below + [(low + split, high + split, foot, lean) for low, high, foot, lean in above]
 
 
 def _trimmed_groups(
@@ -414,10 +422,7 @@ def _grounded_pole(
     for other in sorted(chains, key=lambda c: int(c.slabs[0])):
         if other.slabs[0] <= parts[-1].slabs[-1]:
             continue  # below, or beside a part taken already
-        if (
-            np.linalg.norm(other.centres_xy_m - trunk_xy_m, axis=1).min()
-            < trunk_radius_m + config.min_trunk_gap_m
-        ):
+        if _by_trunk(other.centres_xy_m, trunk_xy_m, trunk_radius_m, config):
             continue  # over the trunk's foot: the tree's leader
         other_heights = (other.slabs + 0.5) * config.slab_m
         along = foot + other_heights[:, None] * lean_per_m
