@@ -57,10 +57,14 @@ _TRUNK_SCORED_POINTS = 4000
 _BATCH_ELEMENTS = 256_000
 """Circles (or first points of circles) are judged in batches of about this many circle-point pairs, so
 that each batch's arrays stay a few megabytes however many points a slice holds."""
-_RIVAL_SHARE = 0.5
+_RIVAL_SHARE = 0.3
 """A circle standing apart from the best-supported one (farther than a trunk's largest diameter) with at
-least this share of its bark is a rival upright: a trellis post near the trunk is as round and as well seen
-as the trunk, and may be better seen. Of such rivals the trunk is the one the crown stands over."""
+least this share of its bark (and ``_TRUNK_MIN_POINTS``) is a rival upright: a trellis post near the trunk is
+as round as the trunk and, where weeds hide the trunk's foot, better seen (held-out near posts 2120034 and
+tuning 2117015: the trunk showed 43 % and 45 % of the post's bark). Of such rivals the trunk is the one the
+crown stands over (:func:`_over_by_crown`). Less than this is too little to be told from weeds: at a
+quarter, a tuft's circle (29 %) where a post beyond the search pulled the crown's middle was taken for the
+trunk (tuning near posts 2119007)."""
 _CROWN_ABOVE_M = 2 * TRUNK_SLICE_M[1]
 """Points higher than this in the frame are the crown's, and whatever stands in it, when the trunk is told
 from rival uprights by what stands over it: above the trunk's slice, twice as high."""
@@ -365,9 +369,9 @@ def _trunk_position(
     points of a low slice near the balls' centroid lie on with nothing inside it (:func:`_bark_support`; seen
     from above, a trunk's bark is an arc or a ring, grass and weeds are scattered dots). The median of the
     slice, which grass and weeds pull aside, and no radius, when no such circle is found. A circle apart
-    from that one with at least half its bark (``_RIVAL_SHARE``) is taken instead when it stands clearly
-    nearer the middle of what stands above the trunk's height within ``crown_radius_m``
-    (:func:`crown_middle`, ``CLEARLY_NEARER``): the crown stands over the trunk."""
+    from that one with enough of its bark is taken instead when it stands clearly nearer the middle of
+    what stands above the trunk's height within ``crown_radius_m`` (:func:`_over_by_crown`): the crown
+    stands over the trunk."""
     world = (points_m - contact) @ rotation.T
     low, high = TRUNK_SLICE_M
     in_slice = (world[:, 2] > low) & (world[:, 2] < high)
@@ -439,7 +443,8 @@ def _bark_circle(
     """The centre and radius of the trunk-sized circle that the most of ``(N, 2)`` slice points lie on with
     nothing inside it, refitted on its arc, and how many points lie on that arc; None when no three nearby
     points make a circle of a trunk's size. With ``above_xy`` (where the points above the trunk's height
-    stand), a rival circle (``_RIVAL_SHARE``) clearly nearer their middle is taken instead."""
+    stand), a rival circle with enough bark clearly nearer their middle is taken instead
+    (:func:`_over_by_crown`)."""
     rng = np.random.default_rng(0)
     scored = xy[rng.permutation(xy.shape[0])[:_TRUNK_SCORED_POINTS]]
     centres, radii = _trunk_circles(scored, rng)
@@ -448,16 +453,38 @@ def _bark_circle(
     support = _bark_support(scored, centres, radii)
     best = int(np.argmax(support))
     apart = np.linalg.norm(centres - centres[best], axis=1) > 2 * TRUNK_RADIUS_RANGE_M[1]
-    rivals = np.flatnonzero(apart & (support >= _RIVAL_SHARE * support[best]))
+    rivals = np.flatnonzero(apart & (support >= max(_RIVAL_SHARE * support[best], _TRUNK_MIN_POINTS)))
     if above_xy is not None and rivals.size:
-        middle = crown_middle(above_xy, np.vstack([centres[best], centres[rivals]]))
-        if middle is not None:
-            distance = np.linalg.norm(centres[rivals] - middle, axis=1)
-            nearest = int(np.argmin(distance))
-            if distance[nearest] < CLEARLY_NEARER * np.linalg.norm(centres[best] - middle):
-                best = int(rivals[nearest])
+        best = _over_by_crown(best, rivals, centres, support, above_xy)
     on_arc = xy[np.abs(np.linalg.norm(xy - centres[best], axis=1) - radii[best]) < _TRUNK_TOLERANCE_M]
     return *fit_circle(on_arc), int(on_arc.shape[0])
+
+
+def _over_by_crown(
+    best: int, rivals: np.ndarray, centres: np.ndarray, support: np.ndarray, above_xy: np.ndarray
+) -> int:
+    """Of the best-supported circle and its ``rivals`` (indices into ``centres`` and their bark
+    ``support``), the one the crown stands over: the best, unless rivals stand clearly nearer the middle of
+    ``above_xy`` (:func:`crown_middle`) than it does (less than ``CLEARLY_NEARER`` of its distance), each
+    showing at least that same share of the best's bark as its distance is of the best's; then the one of
+    them with the most bark. Bark and crown both witness the trunk: the more clearly the crown stands over
+    a rival, the less of its bark it need show (a rival a third as far needs a third of the bark, one
+    right under the crown's middle only ``_RIVAL_SHARE``), and of several under the crown the trunk is the
+    best seen, not the nearest the middle: a crown's middle stands decimetres off its trunk (lopsided, or
+    pulled by a post beyond the search), where a tuft of weeds may make a circle (tuning near posts
+    2115038)."""
+    middle = crown_middle(above_xy, np.vstack([centres[best], centres[rivals]]))
+    if middle is None:
+        return best
+    distance = np.linalg.norm(centres[rivals] - middle, axis=1)
+    best_distance = float(np.linalg.norm(centres[best] - middle))
+    # Shares compared as products: the best may stand right at the middle.
+    taken = (distance < CLEARLY_NEARER * best_distance) & (
+        support[rivals] * best_distance >= distance * support[best]
+    )
+    if not taken.any():
+        return best
+    return int(rivals[taken][np.argmax(support[rivals][taken])])
 
 
 def crown_middle(above_xy: np.ndarray, uprights_xy: np.ndarray, *, min_points: int = 1) -> np.ndarray | None:
