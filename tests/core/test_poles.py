@@ -254,6 +254,23 @@ def test_a_post_s_short_top_above_the_crown_is_joined_though_its_few_slabs_seem_
     assert _on(post[top], poles).all()
 
 
+def test_a_short_stretch_beside_a_post_does_not_bend_its_line_away_from_its_top() -> None:
+    """Tuning near posts 2121057: above a post's foot, a short stretch 15 cm beside the post (at the crown's
+    top), taken first as the lowest, bent the line through the post's stretches away from its top above
+    the crown, which was not joined and made H (+0.56 m). The longest stretches are joined first."""
+    rng = np.random.default_rng(13)
+    parts = _tree(rng)
+    foot = _cylinder(rng, POST_XY_M, 0.05, 0.12, CROWN_BASE_M, 4000)
+    top = _cylinder(rng, POST_XY_M, 0.05, 2.95, 3.45, 3000)  # hidden by leaves from 1 m up to it
+    beside = _cylinder(rng, POST_XY_M + np.array([0.15, 0.0]), 0.03, 2.5, 2.65, 600)
+    points = np.vstack([*parts.values(), foot, top, beside])
+
+    poles = _poles(points)
+
+    assert len(poles) == 1
+    assert _on(top, poles).all()
+
+
 def test_a_stem_leaning_more_than_a_post_is_no_pole_though_its_short_stretches_may_seem_plumb() -> None:
     # Split into stretches too short to be a pole's foot, a leaning stem's pieces each pass as straight
     # within their lean's standard error; the lowest is no foot (a review's probe of a first version: a
