@@ -340,7 +340,8 @@ class PoleConfig(_Section):
         ge=0.0,
         lt=45.0,
         description="A pole leans at most this far from the ground frame's vertical: line posts are set "
-        "plumb, and the frame may tilt a few degrees against gravity.",
+        "plumb, and the frame may tilt a few degrees against gravity. A stretch of it too short to stand as "
+        "its foot (under min_length_m) may seem to lean more, within two standard errors of its lean.",
     )
     max_gap_m: float = Field(
         0.3,
