@@ -409,13 +409,14 @@ def _grounded_pole(
     line of groups (no bend below it), at least ``config.min_length_m`` long and ``config.min_radius_m``
     thick, reaches down to within ``config.max_gap_m`` of ``foot_below_m`` above the ground (grass may hide
     a post's foot), and its column goes on down to below it through hidden spans up to
-    ``config.max_gap_m``. It goes on up through any of the other ``chains`` as thick that continues its line
-    above (the longest first; within the thickest pole's radius and the views' registration's bend of the line through every
-    stretch taken so far, extrapolated up, and two standard errors of that line there: a short stretch's
-    lean carried over metres is uncertain by decimetres; 0.5 m of a post by its foot put its line 0.17 m off
-    the post at 3.2 m) and stands outside the trunk's bark by ``config.min_trunk_gap_m`` (the trunk's foot
-    ``trunk_xy_m``, radius ``trunk_radius_m``: what stands over it is the tree's leader), and on from the
-    highest of them as long as its surface shows (:func:`_surface_top`). None otherwise."""
+    ``config.max_gap_m``. It goes on up through those of the other ``chains`` above it, as thick, that
+    continue its line: within the thickest pole's radius, the tolerance and two standard errors of the line
+    through every stretch taken so far where they stand (a short stretch's lean carried over metres is
+    uncertain by decimetres; 0.5 m of a post by its foot put its line 0.17 m off the post at 3.2 m), the
+    one the line passes nearest taken first, the line refitted and the rest weighed again, one stretch at
+    each height (:func:`_distance_from_line`); none standing over the trunk's foot within its bark and
+    ``config.min_trunk_gap_m`` (``trunk_xy_m``, ``trunk_radius_m``: the tree's leader). From the
+    highest of them it goes on up as long as its surface shows (:func:`_surface_top`). None otherwise."""
     if not chain.from_foot:
         return None  # above a bend of its line (a trunk or a stem leaning low down): not where a pole stands
     if (chain.slabs[-1] - chain.slabs[0] + 1) * config.slab_m < config.min_length_m:
@@ -435,25 +436,25 @@ def _grounded_pole(
     parts = [chain]
     heights = (chain.slabs + 0.5) * config.slab_m
     foot, lean_per_m = chain.foot_xy_m, chain.lean_per_m
-    # Longest first: a long stretch fixes the line better than a short one, which may be something beside
-    # the post (a short stretch 15 cm off, taken first, bent the line away from the post's top: tuning near
-    # posts 2121057, H +0.56 m). Each stretch taken refits the line, and the rest are tried again on it.
-    rest = sorted(
-        (
-            other
-            for other in chains
-            if other.slabs[0] > chain.slabs[-1]
-            and not _by_trunk(other.centres_xy_m, trunk_xy_m, trunk_radius_m, config)  # the tree's leader
-            and _pole_along([other], points_m, config, top_m=0.0).surface_radius_m >= config.min_radius_m
-        ),
-        key=lambda other: (-other.slabs.size, int(other.slabs[0])),
-    )
-    while True:
-        taken = next((other for other in rest if _on_line(other, heights, foot, lean_per_m, config)), None)
-        if taken is None:
+    # Nearest the line first: of the stretches within its reach, the one it passes closest is the post's
+    # own; a stretch 15 cm beside the post at the crown's top, taken first as the lowest, bent the refitted
+    # line away from the post's top above the crown (tuning near posts 2121057, H +0.56 m). Each stretch
+    # taken refits the line, and the rest are weighed again on it.
+    rest = [
+        other
+        for other in chains
+        if other.slabs[0] > chain.slabs[-1]
+        and not _by_trunk(other.centres_xy_m, trunk_xy_m, trunk_radius_m, config)  # the tree's leader
+        and _pole_along([other], points_m, config, top_m=0.0).surface_radius_m >= config.min_radius_m
+    ]
+    while rest:
+        distances = [_distance_from_line(other, heights, foot, lean_per_m, config) for other in rest]
+        nearest = int(np.argmin(distances))
+        if not np.isfinite(distances[nearest]):
             break
-        parts.append(taken)
+        taken = rest[nearest]
         rest = [other for other in rest if not _overlap(other, taken)]  # one part at each height
+        parts.append(taken)
         heights = np.concatenate([heights, (taken.slabs + 0.5) * config.slab_m])
         foot, lean_per_m, _ = _line(heights, np.concatenate([part.centres_xy_m for part in parts]))
     highest = max(parts, key=lambda part: int(part.slabs[-1]))
@@ -461,20 +462,20 @@ def _grounded_pole(
     return replace(joined, top_m=_surface_top(joined, highest, points_m, slab_of, alone, config))
 
 
-def _on_line(
+def _distance_from_line(
     chain: _Chain, heights_m: np.ndarray, foot_xy_m: np.ndarray, lean_per_m: np.ndarray, config: PoleConfig
-) -> bool:
-    """Whether ``chain``'s centres lie on the line ``foot_xy_m + lean_per_m * z``, fitted through centres at
-    ``heights_m``: within the thickest pole's radius, the tolerance, and ``_EXTRAPOLATION_SDS`` standard
-    errors of that line where they stand."""
+) -> float:
+    """How far ``chain``'s centres lie from the line ``foot_xy_m + lean_per_m * z`` fitted through centres at
+    ``heights_m`` (their mean distance); infinite when any lies beyond the line's reach there: the thickest
+    pole's radius, the tolerance, and ``_EXTRAPOLATION_SDS`` standard errors of the line where it stands."""
     chain_heights = (chain.slabs + 0.5) * config.slab_m
-    along = foot_xy_m + chain_heights[:, None] * lean_per_m
+    distance = np.linalg.norm(chain.centres_xy_m - (foot_xy_m + chain_heights[:, None] * lean_per_m), axis=1)
     reach = (
         config.max_radius_m
         + config.tolerance_m
         + _EXTRAPOLATION_SDS * _extrapolation_sd(heights_m, chain_heights, config.tolerance_m)
     )
-    return bool((np.linalg.norm(chain.centres_xy_m - along, axis=1) <= reach).all())
+    return float(distance.mean()) if (distance <= reach).all() else float(np.inf)
 
 
 def _overlap(one: _Chain, other: _Chain) -> bool:

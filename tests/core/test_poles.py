@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from canopy_core.config import MetricsConfig, PoleConfig
 from canopy_core.metrics import canopy_metrics
@@ -257,7 +258,8 @@ def test_a_post_s_short_top_above_the_crown_is_joined_though_its_few_slabs_seem_
 def test_a_short_stretch_beside_a_post_does_not_bend_its_line_away_from_its_top() -> None:
     """Tuning near posts 2121057: above a post's foot, a short stretch 15 cm beside the post (at the crown's
     top), taken first as the lowest, bent the line through the post's stretches away from its top above
-    the crown, which was not joined and made H (+0.56 m). The longest stretches are joined first."""
+    the crown, which was not joined and made H (+0.56 m). The stretch the line passes nearest is joined
+    first."""
     rng = np.random.default_rng(13)
     parts = _tree(rng)
     foot = _cylinder(rng, POST_XY_M, 0.05, 0.12, CROWN_BASE_M, 4000)
@@ -266,6 +268,23 @@ def test_a_short_stretch_beside_a_post_does_not_bend_its_line_away_from_its_top(
     points = np.vstack([*parts.values(), foot, top, beside])
 
     poles = _poles(points)
+
+    assert len(poles) == 1
+    assert _on(top, poles).all()
+
+
+@pytest.mark.parametrize("side_m", [0.2, -0.2])
+def test_a_longer_stem_beside_a_post_s_top_does_not_take_its_place(side_m: float) -> None:
+    # At the heights of the post's top a stem 20 cm off its line, 3 cm thick and longer than the top's
+    # stretch, is within the reach of the foot's line extrapolated too (a review's probe of a version that
+    # joined the longest stretch first: the stem was joined, the post's top left in the tree).
+    rng = np.random.default_rng(13)
+    parts = _tree(rng)
+    foot = _cylinder(rng, POST_XY_M, 0.05, 0.12, CROWN_BASE_M, 4000)
+    top = _cylinder(rng, POST_XY_M, 0.05, 2.95, 3.45, 3000)
+    stem = _cylinder(rng, POST_XY_M + np.array([side_m, 0.0]), 0.03, 3.0, 3.8, 2000)
+
+    poles = _poles(np.vstack([*parts.values(), foot, top, stem]))
 
     assert len(poles) == 1
     assert _on(top, poles).all()
