@@ -210,6 +210,30 @@ def test_balls_laid_out_in_the_open_away_from_any_trunk_find_no_trunk_and_are_re
     assert frame.trunk_points > 0 and no_trunk_round_balls(frame) is None
 
 
+def _trunk_beside_a_post(
+    *, post_dx_m: float, shown_from_deg: float, crown_towards_post_m: float = 0.0
+) -> tuple[GroundFrame, np.ndarray]:
+    """The frame fitted to the scene with a trellis post ``post_dx_m`` along x from the trunk, 2.8 m tall and
+    seen all round, the trunk showing the camera only its bark in front of ``shown_from_deg`` (the angle
+    from its side to the front), the crown moved ``crown_towards_post_m`` towards the post; and where the
+    trunk's foot stands in the recovered frame (x, y)."""
+    rng = np.random.default_rng(2)
+    points_world, balls_world, trunk_xy = _scene(rng)
+    in_crown = points_world[:, 2] > 1.0
+    points_world[in_crown, 0] += np.sign(post_dx_m) * crown_towards_post_m
+    on_trunk = np.abs(np.linalg.norm(points_world[:, :2] - trunk_xy, axis=1) - 0.07) < 1e-9
+    front = points_world[:, 1] < trunk_xy[1] - 0.07 * np.sin(np.radians(shown_from_deg))
+    post_xy = trunk_xy + np.array([post_dx_m, 0.0])
+    angle = rng.uniform(0, 2 * np.pi, 6000)
+    post = np.column_stack(
+        [post_xy[0] + 0.05 * np.cos(angle), post_xy[1] + 0.05 * np.sin(angle), rng.uniform(0, 2.8, 6000)]
+    )
+    frame, recovered_from_world = _fitted_frame(
+        np.vstack([points_world[~on_trunk | front], post]), balls_world
+    )
+    return frame, apply(recovered_from_world, np.array([[trunk_xy[0], trunk_xy[1], 0.0]]))[0, :2]
+
+
 @pytest.mark.parametrize("crown_towards_post_m", [0.0, 0.2])
 def test_the_trunk_is_the_upright_the_crown_stands_over_not_a_better_seen_post_beside_it(
     crown_towards_post_m: float,
@@ -217,38 +241,16 @@ def test_the_trunk_is_the_upright_the_crown_stands_over_not_a_better_seen_post_b
     """A trellis post 0.55 m from the trunk, 2.8 m tall, inside the search round the balls, seen all round
     where the trunk shows the camera only its front: the post's circle holds more bark, but the crown
     stands over the trunk, even grown lopsided towards the post."""
-    rng = np.random.default_rng(2)
-    points_world, balls_world, trunk_xy = _scene(rng)
-    in_crown = points_world[:, 2] > 1.0
-    points_world[in_crown, 0] -= crown_towards_post_m
-    on_trunk = np.abs(np.linalg.norm(points_world[:, :2] - trunk_xy, axis=1) - 0.07) < 1e-9
-    front = points_world[:, 1] < trunk_xy[1] - 0.07 * np.sin(np.pi / 6)
-    post_xy = trunk_xy + np.array([-0.55, 0.0])
-    angle = rng.uniform(0, 2 * np.pi, 6000)
-    post = np.column_stack(
-        [post_xy[0] + 0.05 * np.cos(angle), post_xy[1] + 0.05 * np.sin(angle), rng.uniform(0, 2.8, 6000)]
+    frame, trunk_foot = _trunk_beside_a_post(
+        post_dx_m=-0.55, shown_from_deg=30.0, crown_towards_post_m=crown_towards_post_m
     )
-    scene = np.vstack([points_world[~on_trunk | front], post])
-    frame, recovered_from_world = _fitted_frame(scene, balls_world)
-    trunk_foot = apply(recovered_from_world, np.array([[trunk_xy[0], trunk_xy[1], 0.0]]))[0]
     assert frame.trunk_radius_m == pytest.approx(0.07, abs=0.01)
-    assert np.linalg.norm(np.array(frame.trunk_xy_m) - trunk_foot[:2]) < 0.02
+    assert np.linalg.norm(np.array(frame.trunk_xy_m) - trunk_foot) < 0.02
 
 
 def test_a_trunk_showing_under_half_a_post_s_bark_is_still_the_upright_the_crown_stands_over() -> None:
     """Held-out near posts 2120034: weeds at the trunk's foot left it 43 % of the bark a post 0.63 m from
     it showed in the trunk's slice, under the half once asked of a rival; the post was taken for the
     trunk (H +0.41 m). The crown stands right over the trunk: it needs less bark the more clearly it does."""
-    rng = np.random.default_rng(2)
-    points_world, balls_world, trunk_xy = _scene(rng)
-    on_trunk = np.abs(np.linalg.norm(points_world[:, :2] - trunk_xy, axis=1) - 0.07) < 1e-9
-    front = points_world[:, 1] < trunk_xy[1] - 0.07 * np.sin(np.radians(42))  # 43 % of the post's bark
-    post_xy = trunk_xy + np.array([-0.6, 0.0])
-    angle = rng.uniform(0, 2 * np.pi, 6000)
-    post = np.column_stack(
-        [post_xy[0] + 0.05 * np.cos(angle), post_xy[1] + 0.05 * np.sin(angle), rng.uniform(0, 2.8, 6000)]
-    )
-    scene = np.vstack([points_world[~on_trunk | front], post])
-    frame, recovered_from_world = _fitted_frame(scene, balls_world)
-    trunk_foot = apply(recovered_from_world, np.array([[trunk_xy[0], trunk_xy[1], 0.0]]))[0]
-    assert np.linalg.norm(np.array(frame.trunk_xy_m) - trunk_foot[:2]) < 0.02
+    frame, trunk_foot = _trunk_beside_a_post(post_dx_m=-0.6, shown_from_deg=42.0)  # 43 % of the post's bark
+    assert np.linalg.norm(np.array(frame.trunk_xy_m) - trunk_foot) < 0.02
