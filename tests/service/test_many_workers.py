@@ -1,4 +1,4 @@
-"""Many workers on PostgreSQL, the scale path: four `canopy worker` processes share a queue of 40 jobs; two
+"""Many workers on PostgreSQL, the scale path: four `canopy worker` processes share a queue of 20 jobs; two
 are killed with SIGKILL in the middle of a job, and every job still succeeds exactly once, with one
 measurement each."""
 
@@ -13,7 +13,7 @@ from pathlib import Path
 from tests.service.postgres import postgres_schema
 from tests.service.running import Service, start_service, upload_capture
 
-JOBS = 40
+JOBS = 20
 WORKERS = 4
 
 
