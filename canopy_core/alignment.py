@@ -434,7 +434,10 @@ def balls_and_frame(
     frame, but the look-alike may be another view's: when each view took a look-alike for a different
     ball, each placed where the other's puts it, the triangles agree and the reference's odd ball out is
     the other view's true one. So if choosing again without the ball named fails, each other colour's
-    choice is left out in turn.
+    choice is left out in turn. If none of those holds either, each colour's choice is left out in turn
+    again with the spheres anywhere kept, not only round the trunk: the trunk was found round the balls
+    taken, and a look-alike far out pulls their centre towards a trellis post, which is then taken for the
+    trunk, with the true balls 1-2 m from it.
 
     Raises
     ------
@@ -449,34 +452,39 @@ def balls_and_frame(
         return choices, view_to_reference, ground
     named, failure = misplaced
     trunk_xy = np.array(ground.trunk_xy_m)
-    for color in dict.fromkeys((named, *config.balls.colors) if named else config.balls.colors):
-        without = []
-        for view, choice, pose in zip(candidates, choices, view_to_reference, strict=True):
-            world_from_view = ground.world_from_reference @ pose
-            # Ruled out, not merely dropped: no search may find the look-alike again as a fragment.
-            ruled = view.ruling_out(choice.chosen[color].fit.center_m, config.balls.radius_m)
-            if named is None:  # no trunk found: none to keep the spheres round
-                without.append(ruled)
-                continue
-            without.append(
-                replace(
-                    ruled,
-                    candidates=tuple(
-                        candidate
-                        for candidate in ruled.candidates
-                        if _round_trunk(
-                            candidate, world_from_view, trunk_xy, config.balls.max_trunk_distance_m
-                        )
-                    ),
+    # Round the trunk first; then, if no choice there holds, anywhere: the "trunk" may be a post that the
+    # look-alike's frame put near the balls' centre, and the true balls lie far from it.
+    for round_trunk in (True, False) if named else (False,):
+        for color in dict.fromkeys((named, *config.balls.colors) if named else config.balls.colors):
+            without = []
+            for view, choice, pose in zip(candidates, choices, view_to_reference, strict=True):
+                world_from_view = ground.world_from_reference @ pose
+                # Ruled out, not merely dropped: no search may find the look-alike again as a fragment.
+                ruled = view.ruling_out(choice.chosen[color].fit.center_m, config.balls.radius_m)
+                if not round_trunk:
+                    without.append(ruled)
+                    continue
+                without.append(
+                    replace(
+                        ruled,
+                        candidates=tuple(
+                            candidate
+                            for candidate in ruled.candidates
+                            if _round_trunk(
+                                candidate, world_from_view, trunk_xy, config.balls.max_trunk_distance_m
+                            )
+                        ),
+                    )
                 )
-            )
-        try:
-            again = select_balls(without, config.balls, grounds=grounds, shared_ball_first=shared_ball_first)
-        except MeasurementError:
-            continue
-        poses, frame, centres_world = _registered(again, clouds, config)
-        if _misplaced_ball(centres_world, frame, config) is None:
-            return again, poses, frame
+            try:
+                again = select_balls(
+                    without, config.balls, grounds=grounds, shared_ball_first=shared_ball_first
+                )
+            except MeasurementError:
+                continue
+            poses, frame, centres_world = _registered(again, clouds, config)
+            if _misplaced_ball(centres_world, frame, config) is None:
+                return again, poses, frame
     raise failure
 
 
