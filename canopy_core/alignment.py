@@ -20,7 +20,7 @@ from canopy_core.ball_selection import (
     no_trunk_round_balls,
     select_balls,
 )
-from canopy_core.balls import BallCandidate, ViewBallCandidates
+from canopy_core.balls import ViewBallCandidates
 from canopy_core.config import IcpConfig, MeasureConfig
 from canopy_core.errors import MeasurementError, RegistrationFailed
 from canopy_core.filters import sparse_point_mask
@@ -435,14 +435,16 @@ def balls_and_frame(
     ball, each placed where the other's puts it, the triangles agree and the reference's odd ball out is
     the other view's true one. So if choosing again without the ball named fails, each other colour's
     choice is left out in turn. If none of those holds either, each colour's choice is left out in turn
-    again with the spheres anywhere kept, not only round the trunk: the trunk was found round the balls
-    taken, and a look-alike far out pulls their centre towards a trellis post, which is then taken for the
-    trunk, with the true balls 1-2 m from it.
+    again with the spheres anywhere kept, the ball named last: the trunk was found round the balls taken,
+    and a look-alike far out pulls their centre towards a trellis post, which is then taken for the trunk,
+    with the true balls (the one named among them) 1-2 m from it. Such a choice, no longer held to the
+    first trunk, must stand round a trunk of its own seen on its bark (``GroundFrame.trunk_on_bark``), not
+    merely round the middle of what stands there.
 
     Raises
     ------
     BallNotFound, RegistrationFailed
-        As :func:`select_balls`; RegistrationFailed naming the ball when no other choice lies round the
+        As :func:`select_balls`; RegistrationFailed naming the ball when no other choice lies round a
         trunk and on the ground.
     """
     choices = select_balls(candidates, config.balls, grounds=grounds, shared_ball_first=shared_ball_first)
@@ -451,49 +453,67 @@ def balls_and_frame(
     if misplaced is None:
         return choices, view_to_reference, ground
     named, failure = misplaced
-    trunk_xy = np.array(ground.trunk_xy_m)
-    # Round the trunk first; then, if no choice there holds, anywhere: the "trunk" may be a post that the
-    # look-alike's frame put near the balls' centre, and the true balls lie far from it.
-    for round_trunk in (True, False) if named else (False,):
-        for color in dict.fromkeys((named, *config.balls.colors) if named else config.balls.colors):
-            without = []
-            for view, choice, pose in zip(candidates, choices, view_to_reference, strict=True):
-                world_from_view = ground.world_from_reference @ pose
-                # Ruled out, not merely dropped: no search may find the look-alike again as a fragment.
-                ruled = view.ruling_out(choice.chosen[color].fit.center_m, config.balls.radius_m)
-                if not round_trunk:
-                    without.append(ruled)
-                    continue
-                without.append(
-                    replace(
-                        ruled,
-                        candidates=tuple(
-                            candidate
-                            for candidate in ruled.candidates
-                            if _round_trunk(
-                                candidate, world_from_view, trunk_xy, config.balls.max_trunk_distance_m
-                            )
-                        ),
-                    )
-                )
-            try:
-                again = select_balls(
-                    without, config.balls, grounds=grounds, shared_ball_first=shared_ball_first
-                )
-            except MeasurementError:
-                continue
-            poses, frame, centres_world = _registered(again, clouds, config)
-            if _misplaced_ball(centres_world, frame, config) is None:
-                return again, poses, frame
+    anywhere = {
+        color: [
+            # Ruled out, not merely dropped: no search may find the look-alike again as a fragment.
+            view.ruling_out(choice.chosen[color].fit.center_m, config.balls.radius_m)
+            for view, choice in zip(candidates, choices, strict=True)
+        ]
+        for color in config.balls.colors
+    }
+    # Each try: the views' spheres to choose from, and whether the choice must stand round a trunk seen
+    # on its bark (where the spheres were not kept round the trunk the first choice found).
+    tries: list[tuple[list[ViewBallCandidates], bool]]
+    if named is None:  # no trunk found: none to keep the spheres round
+        tries = [(views, False) for views in anywhere.values()]
+    else:
+        # Round the trunk first, the ball named first; then, where that dropped spheres, anywhere, the
+        # ball named last: a look-alike far out pulls the balls' centre towards a trellis post, which is
+        # then taken for the trunk, and the ball named may be a true one, 1-2 m from the post.
+        others = [color for color in config.balls.colors if color != named]
+        round_trunk = {
+            color: _kept_round_trunk(anywhere[color], view_to_reference, ground, config)
+            for color in (named, *others)
+        }
+        tries = [(views, False) for views in round_trunk.values()] + [
+            (anywhere[color], True)
+            for color in (*others, named)
+            if _count(anywhere[color]) > _count(round_trunk[color])
+        ]
+    for without, on_bark in tries:
+        try:
+            again = select_balls(without, config.balls, grounds=grounds, shared_ball_first=shared_ball_first)
+        except MeasurementError:
+            continue
+        poses, frame, centres_world = _registered(again, clouds, config)
+        if (frame.trunk_on_bark or not on_bark) and _misplaced_ball(centres_world, frame, config) is None:
+            return again, poses, frame
     raise failure
 
 
-def _round_trunk(
-    candidate: BallCandidate, world_from_view: np.ndarray, trunk_xy_m: np.ndarray, max_distance_m: float
-) -> bool:
-    """Whether a sphere lies within ``max_distance_m`` of the trunk, horizontally, where a ball may lie."""
-    centre = apply(world_from_view, candidate.fit.center_m[None, :])[0]
-    return bool(np.linalg.norm(centre[:2] - trunk_xy_m) <= max_distance_m)
+def _kept_round_trunk(
+    views: list[ViewBallCandidates],
+    view_to_reference: list[np.ndarray],
+    ground: GroundFrame,
+    config: MeasureConfig,
+) -> list[ViewBallCandidates]:
+    """Each view's spheres but those farther than ``balls.max_trunk_distance_m`` from the trunk of
+    ``ground``, horizontally (``view_to_reference``: each view's pose in the reference view's frame)."""
+    trunk_xy = np.array(ground.trunk_xy_m)
+    kept = []
+    for view, pose in zip(views, view_to_reference, strict=True):
+        centres = np.array([candidate.fit.center_m for candidate in view.candidates]).reshape(-1, 3)
+        world = apply(ground.world_from_reference @ pose, centres)
+        near = np.linalg.norm(world[:, :2] - trunk_xy, axis=1) <= config.balls.max_trunk_distance_m
+        kept.append(
+            replace(view, candidates=tuple(c for c, n in zip(view.candidates, near, strict=True) if n))
+        )
+    return kept
+
+
+def _count(views: list[ViewBallCandidates]) -> int:
+    """How many spheres the views hold together."""
+    return sum(len(view.candidates) for view in views)
 
 
 def _misplaced_ball(

@@ -73,12 +73,14 @@ def test_balls_chosen_again_away_from_a_post_that_a_look_alike_made_the_trunk(tm
     true balls lay 1.1-1.9 m from the post, so choosing again among the spheres round it found none and
     the capture failed, though both views show the red ball (one whole, one in part behind the trunk).
     When no choice round the trunk holds, each ball's sphere is now ruled out in turn with the spheres
-    anywhere kept: the true red ball is chosen, round the true trunk, and the tree is measured right."""
+    anywhere kept (the ball named, blue, a true one, last): the true balls are chosen, round the true
+    trunk, and the tree is measured right."""
     capture = simulate_capture(tmp_path / "tree", seed=2122047, n_views=2, scenario="mixed")
     truth = truth_of(capture)
     result = measure(capture)
     for view in ("views/1", "views/2"):
-        assert ball_error_m(result, truth, view, "red") < 0.02, view
+        for color in ("red", "yellow", "blue"):
+            assert ball_error_m(result, truth, view, color) < 0.02, (view, color)
     assert_within_5_percent(result.merged, truth)
 
 
