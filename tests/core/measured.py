@@ -29,3 +29,13 @@ def ball_error_m(result: Measurement, truth: dict, view: str, color: str) -> flo
     view_from_world = np.linalg.inv(np.array(truth["views"][view]["camera_to_world"]))
     actual = view_from_world @ np.append(truth["balls"][color]["center_m"], 1.0)
     return float(np.linalg.norm(chosen - actual[:3]))
+
+
+def assert_balls_true(
+    result: Measurement, truth: dict, colors: tuple[str, ...] = ("red", "yellow", "blue")
+) -> None:
+    """The balls of ``colors`` chosen in every view each within 2 cm of the simulator's: the true balls,
+    not look-alikes that happen to register the views."""
+    for view in result.views:
+        for color in colors:
+            assert ball_error_m(result, truth, view.view, color) < 0.02, (view.view, color)

@@ -16,7 +16,7 @@ from canopy_core.capture import load_capture
 from canopy_core.errors import RegistrationFailed
 from canopy_core.measure import ball_evidence, config_for, filtered_cloud, measure
 from canopy_core.simulate import simulate_capture
-from tests.core.measured import assert_within_5_percent, ball_error_m, truth_of
+from tests.core.measured import assert_balls_true, assert_within_5_percent, ball_error_m, truth_of
 
 
 def test_a_triangle_closed_on_the_trunk_fails_instead_of_measuring_a_wrong_tree(tmp_path: Path) -> None:
@@ -78,9 +78,7 @@ def test_balls_chosen_again_away_from_a_post_that_a_look_alike_made_the_trunk(tm
     capture = simulate_capture(tmp_path / "tree", seed=2122047, n_views=2, scenario="mixed")
     truth = truth_of(capture)
     result = measure(capture)
-    for view in ("views/1", "views/2"):
-        for color in ("red", "yellow", "blue"):
-            assert ball_error_m(result, truth, view, color) < 0.02, (view, color)
+    assert_balls_true(result, truth)
     assert_within_5_percent(result.merged, truth)
 
 
@@ -137,9 +135,7 @@ def test_balls_resting_on_a_hollow_floor_are_kept_though_their_plane_tilts(tmp_p
     truth = truth_of(capture)
     result = measure(capture)
     assert result.ground.on_ground and result.ground.tilt_from_ball_plane_deg > 15.0
-    for view in ("views/1", "views/2"):
-        for color in ("red", "yellow", "blue"):
-            assert ball_error_m(result, truth, view, color) < 0.02, (view, color)
+    assert_balls_true(result, truth)
     assert_within_5_percent(result.merged, truth)
 
 
@@ -153,9 +149,7 @@ def test_a_ball_in_deep_shade_is_found_by_its_shape(tmp_path: Path) -> None:
     truth = truth_of(capture)
     result = measure(capture)
     assert "yellow" not in result.views[1].balls_found_by_position
-    for view in ("views/1", "views/2"):
-        for color in ("red", "yellow", "blue"):
-            assert ball_error_m(result, truth, view, color) < 0.02, (view, color)
+    assert_balls_true(result, truth)
     assert_within_5_percent(result.merged, truth)
 
 
@@ -220,9 +214,7 @@ def test_look_alikes_in_both_views_that_agree_by_chance_are_refused_and_the_ball
     truth = truth_of(capture)
     result = measure(capture)
     assert result.views[1].balls_placed_unseen == ("red",)
-    for view in ("views/1", "views/2"):
-        for color in ("yellow", "blue"):
-            assert ball_error_m(result, truth, view, color) < 0.02, (view, color)
+    assert_balls_true(result, truth, ("yellow", "blue"))
     assert_within_5_percent(result.merged, truth)
 
 
@@ -268,7 +260,5 @@ def test_views_whose_best_trunk_circles_differ_register_when_each_sees_a_trunk_a
     capture = simulate_capture(tmp_path / "tree", seed=2067013, n_views=2, scenario="mixed")
     truth = truth_of(capture)
     result = measure(capture)
-    for view in ("views/1", "views/2"):
-        for color in ("red", "yellow", "blue"):
-            assert ball_error_m(result, truth, view, color) < 0.02, (view, color)
+    assert_balls_true(result, truth)
     assert_within_5_percent(result.merged, truth)

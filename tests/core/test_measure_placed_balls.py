@@ -8,7 +8,7 @@ from pathlib import Path
 
 from canopy_core.measure import measure
 from canopy_core.simulate import simulate_capture
-from tests.core.measured import assert_within_5_percent, ball_error_m, truth_of
+from tests.core.measured import assert_balls_true, assert_within_5_percent, ball_error_m, truth_of
 
 
 def test_a_far_ball_mostly_hidden_is_found_where_the_other_view_places_it(tmp_path: Path) -> None:
@@ -46,9 +46,7 @@ def test_each_view_missing_another_ball_finds_it_round_the_one_both_see(tmp_path
     result = measure(capture)
     assert "yellow" in result.views[0].balls_found_by_position
     assert "red" in result.views[1].balls_found_by_position
-    for view in ("views/1", "views/2"):
-        for color in ("red", "yellow", "blue"):
-            assert ball_error_m(result, truth, view, color) < 0.02, (view, color)
+    assert_balls_true(result, truth)
     assert_within_5_percent(result.merged, truth)
 
 
@@ -91,9 +89,7 @@ def test_a_ball_is_carried_round_the_trunk_from_every_likely_sphere_of_the_share
     result = measure(capture)
     assert result.views[0].balls_found_by_position == ("blue",)
     assert result.views[1].balls_found_by_position == ("red",)
-    for view in ("views/1", "views/2"):
-        for color in ("red", "yellow", "blue"):
-            assert ball_error_m(result, truth, view, color) < 0.02, (view, color)
+    assert_balls_true(result, truth)
     assert_within_5_percent(result.merged, truth)
 
 
@@ -150,7 +146,5 @@ def test_a_ball_one_view_does_not_show_is_placed_by_the_two_it_shows_and_the_gro
     result = measure(capture)
     second = next(v for v in result.views if v.view == "views/2")
     assert second.balls_placed_unseen == ("red",) and second.balls["red"].points == 0
-    for view in ("views/1", "views/2"):
-        for color in ("red", "yellow", "blue"):
-            assert ball_error_m(result, truth, view, color) < 0.02, (view, color)
+    assert_balls_true(result, truth)
     assert_within_5_percent(result.merged, truth)
