@@ -490,6 +490,16 @@ class IcpConfig(_Section):
         "largest trunk radius the search takes); a registration on look-alikes puts them metres apart while "
         "ICP, lining up flat ground, barely moves.",
     )
+    trunk_coincidence_m: float = Field(
+        0.06,
+        gt=0.0,
+        description="The trunk each view finds on its own stands within this of the reference view's when "
+        "the views' trunks coincide: the arcs of one trunk seen from two sides, registered soundly, give "
+        "circles a few centimetres apart (within 4 cm on 36 sound registrations of mixed 2064). A first "
+        "choice of balls whose trunks do not coincide is weighed against the choices made with each ball "
+        "ruled out in turn; a choice made again that the surfaces do not confirm within a sound "
+        "registration's bounds stands only where it makes them coincide.",
+    )
     max_disagreement_deg: float = Field(
         6.0,
         gt=0.0,
