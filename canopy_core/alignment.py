@@ -77,10 +77,10 @@ def align_views(
     again; of the choices that stand (:func:`_stands_made_again`: the surfaces agree with them as closely
     as with a sound registration, ICP keeping its refinement of every view, or, where the trunk each view
     finds on its own stands at one place, at least as a first choice is judged), the one the surfaces
-    contradict least is taken. A first
-    choice resting on a ball placed unseen, or with a view that shares fewer than two balls fitted as
-    spheres with the reference, must itself meet the closer bound (:func:`_check_weakly_held`), and every
-    first choice must stand the views round one trunk (:func:`check_trunk_agreement`).
+    contradict least is taken. A first choice resting on a ball placed unseen, or with a view that shares
+    fewer than two balls fitted as spheres with the reference, must itself meet the closer bound
+    (:func:`_check_weakly_held`), and every first choice must stand the views round one trunk
+    (:func:`check_trunk_agreement`).
 
     A first choice that passes all that but under which the trunk each view finds on its own stands apart
     (:func:`_trunks_coincide`: a trellis post or a clump of suckers taken for the trunk in one view, or two

@@ -61,8 +61,7 @@ def test_a_heap_of_apples_far_from_the_trunk_is_dropped_whole_and_the_true_ball_
     capture = simulate_capture(tmp_path / "tree", seed=2040027, n_views=2, scenario="mixed")
     truth = truth_of(capture)
     result = measure(capture)
-    for view in ("views/1", "views/2"):
-        assert ball_error_m(result, truth, view, "red") < 0.02, view
+    assert_balls_true(result, truth, ("red",))
     assert_within_5_percent(result.merged, truth)
 
 
@@ -107,22 +106,31 @@ def test_a_ball_placed_unseen_among_look_alikes_fails_where_the_surfaces_do_not_
     assert info.value.view == "views/1"
 
 
-@pytest.mark.parametrize("seed", [2054014, 2053020])
-def test_a_pose_resting_on_fragments_fails_where_the_surfaces_do_not_confirm_it(
-    tmp_path: Path, seed: int
-) -> None:
-    """Mixed seeds found on held-out runs of the accuracy benchmark, where the views share only the blue ball
-    fitted as a sphere in both. 2054014: views/1 took a yellow look-alike, and views/2's red and yellow
-    balls were taken as fragments 1.2-1.8 m off where that triangle put them (fitted radii 74 and 80 mm);
-    ICP wanted 3.5 degrees, more than such a pose leaves open but short of a certain failure, so the ball
-    pose was kept and W came out 12 % wide with no error. 2053020: each view took one look-alike and a
-    fragment where the other's triangle put it; ICP wanted 5.1 degrees, W 5 % off. Held by one ball both
-    views fit, like a view with a ball placed unseen, the pose must be confirmed by the surfaces, and here
-    it is not."""
-    capture = simulate_capture(tmp_path / "tree", seed=seed, n_views=2, scenario="mixed")
+def test_a_pose_resting_on_fragments_fails_where_the_surfaces_do_not_confirm_it(tmp_path: Path) -> None:
+    """Mixed seed 2053020, found on a held-out run of the accuracy benchmark, where the views share only the
+    blue ball fitted as a sphere in both: each view took one look-alike and a fragment where the other's
+    triangle put it; ICP wanted 5.1 degrees, W 5 % off. Held by one ball both views fit, like a view with a
+    ball placed unseen, the pose must be confirmed by the surfaces, and here it is not."""
+    capture = simulate_capture(tmp_path / "tree", seed=2053020, n_views=2, scenario="mixed")
     with pytest.raises(RegistrationFailed, match="both fit only the blue ball") as info:
         measure(capture)
     assert info.value.view == "views/2"
+
+
+def test_a_choice_made_again_that_makes_the_trunks_coincide_stands_though_icp_moves_its_balls(
+    tmp_path: Path,
+) -> None:
+    """Mixed seed 2054014, found on a held-out run of the accuracy benchmark: views/1 took a yellow
+    look-alike, and views/2's red and yellow balls were taken as fragments 1.2-1.8 m off where that
+    triangle put them; W came out 12 % wide, and from 2026-11-27 the capture failed (the pose, held by the
+    blue ball alone, was not confirmed by the surfaces). With that yellow ruled out the true balls are
+    chosen: ICP moves them 12 mm, beyond what their fits leave open, so that choice did not stand; but the
+    trunk each view finds on its own stands at one place under it, and it is taken."""
+    capture = simulate_capture(tmp_path / "tree", seed=2054014, n_views=2, scenario="mixed")
+    truth = truth_of(capture)
+    result = measure(capture)
+    assert_balls_true(result, truth, ("yellow",), within_m=0.03)
+    assert_within_5_percent(result.merged, truth)
 
 
 def test_balls_resting_on_a_hollow_floor_are_kept_though_their_plane_tilts(tmp_path: Path) -> None:
@@ -193,8 +201,7 @@ def test_a_look_alike_the_surfaces_contradict_is_ruled_out_and_the_balls_chosen_
     capture = simulate_capture(tmp_path / "tree", seed=2042018, n_views=2, scenario="mixed")
     truth = truth_of(capture)
     result = measure(capture)
-    for view in ("views/1", "views/2"):
-        assert ball_error_m(result, truth, view, "red") < 0.02, view
+    assert_balls_true(result, truth, ("red",))
     assert_within_5_percent(result.merged, truth)
 
 
@@ -261,4 +268,35 @@ def test_views_whose_best_trunk_circles_differ_register_when_each_sees_a_trunk_a
     truth = truth_of(capture)
     result = measure(capture)
     assert_balls_true(result, truth)
+    assert_within_5_percent(result.merged, truth)
+
+
+def test_a_first_choice_whose_trunks_stand_apart_gives_way_to_balls_the_surfaces_confirm_better(
+    tmp_path: Path,
+) -> None:
+    """Mixed seed 2126017, found on a held-out run of the accuracy benchmark: views/1's yellow ball was a
+    look-alike 0.6 m off whose triangle agreed with views/2's; ICP moved the balls 16 mm (within bounds)
+    and the trunk each view found stood 0.70 m from the other's, each view holding a tuft within 0.4 m of
+    the other's foot, so every check passed and W came out 27 % narrow, the views turned 52 degrees about
+    the trunk. Trunks apart, the first choice is weighed against those made with each ball ruled out: with
+    the yellow look-alike ruled out the true balls are found, ICP moves them 2 mm, and they are taken."""
+    capture = simulate_capture(tmp_path / "tree", seed=2126017, n_views=2, scenario="mixed")
+    truth = truth_of(capture)
+    result = measure(capture)
+    assert_balls_true(result, truth, ("red", "blue"))
+    assert_within_5_percent(result.merged, truth)
+
+
+def test_look_alikes_beside_a_post_give_way_to_the_true_balls_whose_trunks_coincide(tmp_path: Path) -> None:
+    """Near-posts seed 2125048, found on a held-out run of the accuracy benchmark: views/1 took look-alikes
+    for the red and yellow balls, the views met 147 degrees apart round the blue ball, ICP moved the balls
+    47 mm (inside the 50 mm a first choice may), and each view held a trunk-sized circle (a post, weeds)
+    within 0.4 m of the other's foot, the feet 0.84 m apart: W came out 40 % wide with no error. With
+    either look-alike ruled out the true balls are found, the trunks 4 mm apart; ICP moves them 25 mm, short
+    of a first choice's bound though beyond a sound registration's, and the surfaces contradict them half as
+    much: they are taken."""
+    capture = simulate_capture(tmp_path / "tree", seed=2125048, n_views=2, scenario="mixed", near_posts=True)
+    truth = truth_of(capture)
+    result = measure(capture)
+    assert_balls_true(result, truth, ("red",), within_m=0.05)
     assert_within_5_percent(result.merged, truth)
