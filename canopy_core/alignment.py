@@ -86,12 +86,14 @@ def align_views(
     (:func:`_trunks_coincide`: a trellis post or a clump of suckers taken for the trunk in one view, or two
     look-alikes registering the views round the one true ball) is weighed against the choices made with
     each ball of every view ruled out in turn, and the one of them all the surfaces contradict least is
-    taken. Mixed 2126017: red and blue right in both views, views/1's yellow a look-alike 0.6 m off; the
-    triangles agreed, the views turned 52 degrees about the trunk with ICP moving the balls 16 mm, the two
-    trunks 0.70 m apart (each view holding a tuft within 0.4 m of the other's), W 27 % narrow. With that
-    yellow ruled out, the balls ICP moves 2 mm are found and the trunks stand 5 mm apart. On the 238 first
-    choices of the tuning sets (mixed 2118 and 2122, near posts 2119 and 2121) that pass, 63 had their
-    trunks apart; weighed so, none was taken over by a wrong choice.
+    taken. Mixed 2126017: only the blue ball right in both views, the red and yellow look-alikes 0.6-1.7 m
+    off whose triangles agreed; the views registered 52 degrees from their true poses with ICP moving the
+    balls 16 mm, the two trunks 0.70 m apart (each view holding a tuft within 0.4 m of the other's foot),
+    W 27 % narrow. With a red look-alike ruled out, the true red and blue balls are found (the yellow a
+    look-alike both views agree on), ICP moves them 2 mm and the trunks stand 5 mm apart. Of the 238 first
+    choices that pass on 244 captures recorded (the tuning sets mixed 2118 and 2122, near posts 2119 and
+    2121, and four examined trees), 63 had their trunks apart; weighed so, none was taken over by a wrong
+    choice. Without ICP no choice is contradicted more than another, and none is weighed.
 
     Parameters
     ----------
@@ -111,28 +113,33 @@ def align_views(
     """
     first = _aligned(view_names, clouds, focal_px, candidates, grounds, config, refining=refining)
     names = list(view_names)
+
+    def made_again(suspects: Sequence[int]) -> list[Alignment]:
+        """The choices made again, ruling out the balls of the ``suspects`` views, that stand."""
+        return [
+            again
+            for again in _choices_made_again(
+                first, suspects, view_names, clouds, focal_px, candidates, grounds, config
+            )
+            if _stands_made_again(again, clouds, grounds, config)
+        ]
+
+    def least_contradicted(choices: list[Alignment]) -> Alignment:
+        return min(choices, key=lambda alignment: _disagreement(alignment, config.icp))
+
     try:
         _check_first_choice(first, clouds, grounds, config)
     except RegistrationFailed as disagreement:
-        failure: RegistrationFailed | None = disagreement
-        standing = []
-        suspects = list(
-            dict.fromkeys((names.index(disagreement.view) if disagreement.view in names else 0, 0))
-        )
+        failure = disagreement
     else:
-        if _trunks_coincide(first, clouds, grounds, config) is not False:
+        # Without ICP no choice is contradicted more than another: nothing to weigh.
+        if not config.icp.enabled or _trunks_coincide(first, clouds, grounds, config) is not False:
             return first
-        failure, standing, suspects = None, [first], list(range(len(names)))
-    agreeing = standing + [
-        again
-        for again in _choices_made_again(
-            first, suspects, view_names, clouds, focal_px, candidates, grounds, config
-        )
-        if _stands_made_again(again, clouds, grounds, config)
-    ]
-    if agreeing:
-        return min(agreeing, key=lambda alignment: _disagreement(alignment, config.icp))
-    assert failure is not None  # a first choice that stands is among the agreeing
+        return least_contradicted([first, *made_again(range(len(names)))])
+    suspect = names.index(failure.view) if failure.view in names else 0
+    standing = made_again(list(dict.fromkeys((suspect, 0))))
+    if standing:
+        return least_contradicted(standing)
     # The balls sought about the one both views share first: where one view's fragments of clutter
     # closed a triangle with the other's, two fragments at one turn about the shared ball may be the
     # balls (2088013: each view shows two balls whole, not the same two; the circles took clutter).
@@ -140,9 +147,11 @@ def align_views(
         again = _aligned(view_names, clouds, focal_px, candidates, grounds, config, shared_ball_first=True)
     except MeasurementError:
         raise failure from None
-    if not _stands_made_again(again, clouds, grounds, config):
-        raise failure
-    return again
+    if _stands_made_again(again, clouds, grounds, config):
+        return again
+    if _confirms_choice_made_again(again, config.icp):
+        check_trunk_agreement(again, clouds, grounds, config)  # it stands unless the trunks disagree: say so
+    raise failure
 
 
 def _check_first_choice(
@@ -185,9 +194,10 @@ def _choices_made_again(
                 first.choices[index].chosen[color].fit.center_m, config.balls.radius_m
             )
             try:
-                yield _aligned(view_names, clouds, focal_px, retry, grounds, config)
+                again = _aligned(view_names, clouds, focal_px, retry, grounds, config)
             except MeasurementError:
                 continue
+            yield again
 
 
 def _stands_made_again(
@@ -200,12 +210,18 @@ def _stands_made_again(
     (:func:`_confirms_choice_made_again`) and the views stand round one trunk
     (:func:`check_trunk_agreement`); or the surfaces only do not contradict it as a first choice is judged
     (:func:`_check_first_choice`), but the trunk each view finds on its own stands at one place
-    (:func:`_trunks_coincide`). Trunks that coincide are evidence of their own that the balls are right
-    (one trunk seen from two sides, found at one place), which a look-alike's registration meets by chance
-    only: near posts 2125048, its first choice two look-alikes with the trunks 0.84 m apart; with either
-    ruled out the true balls are found, the trunks 4 mm apart, but ICP moves the balls 25 mm, beyond what
-    their fits leave open. Trunks apart do not refuse a choice the surfaces confirm: on sound
-    registrations weeds and suckers pull one view's circle up to 19 cm aside (2036042: 15 cm)."""
+    (:func:`_trunks_coincide`; where fewer than two views find their trunk, that is not known, and only
+    the surfaces' confirmation counts). Trunks that coincide are evidence of their own that the balls are
+    right (one trunk seen from two sides, found at one place), which a look-alike's registration meets by
+    chance only: near posts 2125048, its first choice two look-alikes with the trunks 0.84 m apart; with
+    either ruled out, views/1's red ball is placed unseen 3 cm from the ball and the others found, the
+    trunks 4 mm apart, but ICP moves the balls 25 mm and turns the view 2.7 degrees, beyond what a pose
+    resting on a ball placed unseen may (:func:`_confirms_choice_made_again`); mixed 2054014 likewise (12 mm,
+    1.5 degrees). So this way a choice resting on a ball placed unseen or on fragments may stand, held only
+    to a first choice's bounds, where its trunks coincide (2051009's look-alike, which only the bounds for
+    a ball placed unseen refuse, stands in a view that finds no trunk of its own: not this way). Trunks
+    apart do not refuse a choice the surfaces confirm: on sound registrations weeds and suckers pull one
+    view's circle up to 19 cm aside (2036042: 15 cm)."""
     if _confirms_choice_made_again(again, config.icp):
         try:
             check_trunk_agreement(again, clouds, grounds, config)
@@ -228,7 +244,8 @@ def _trunks_coincide(
     config: MeasureConfig,
 ) -> bool | None:
     """Whether the trunk each view finds on its own (:func:`_trunk_feet`) stands within
-    ``icp.trunk_coincidence_m`` of the reference view's; None where fewer than two views find one."""
+    ``icp.trunk_coincidence_m`` of that of the first view (in capture order) that finds one; None where
+    fewer than two views find one."""
     feet = _trunk_feet(alignment, clouds, grounds, config)
     if len(feet) < 2:
         return None

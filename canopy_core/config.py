@@ -493,12 +493,14 @@ class IcpConfig(_Section):
     trunk_coincidence_m: float = Field(
         0.06,
         gt=0.0,
-        description="The trunk each view finds on its own stands within this of the reference view's when "
-        "the views' trunks coincide: the arcs of one trunk seen from two sides, registered soundly, give "
-        "circles a few centimetres apart (within 4 cm on 36 sound registrations of mixed 2064). A first "
-        "choice of balls whose trunks do not coincide is weighed against the choices made with each ball "
-        "ruled out in turn; a choice made again that the surfaces do not confirm within a sound "
-        "registration's bounds stands only where it makes them coincide.",
+        description="The views' trunks coincide where the trunk each view finds on its own stands within "
+        "this of the first view's that finds one: the arcs of one trunk seen from two sides, registered "
+        "soundly, give circles a few centimetres apart (36 sound registrations of mixed 2064 within 4 cm), "
+        "though a post, suckers or weeds may make one view's best circle stand apart on a sound registration "
+        "too. A first choice of balls that passes every check with its trunks apart is weighed against the "
+        "choices made with each ball ruled out in turn; a choice made again that the surfaces do not confirm "
+        "within a sound registration's bounds stands only where its trunks coincide and it passes a first "
+        "choice's checks. Well below max_trunk_mismatch_m.",
     )
     max_disagreement_deg: float = Field(
         6.0,
