@@ -127,13 +127,14 @@ def align_views(
     def least_contradicted(choices: list[Alignment]) -> Alignment:
         return min(choices, key=lambda alignment: _disagreement(alignment, config.icp))
 
+    feet = _trunk_feet(first, clouds, grounds, config)
     try:
-        _check_first_choice(first, clouds, grounds, config)
+        _check_first_choice(first, clouds, grounds, config, feet=feet)
     except RegistrationFailed as disagreement:
         failure = disagreement
     else:
         # Without ICP no choice is contradicted more than another: nothing to weigh.
-        if not config.icp.enabled or _trunks_coincide(first, clouds, grounds, config) is not False:
+        if not config.icp.enabled or _trunks_coincide(feet, config) is not False:
             return first
         return least_contradicted([first, *made_again(range(len(names)))])
     suspect = names.index(failure.view) if failure.view in names else 0
@@ -159,10 +160,13 @@ def _check_first_choice(
     clouds: Sequence[ViewCloud],
     grounds: Sequence[GroundPlane | None],
     config: MeasureConfig,
+    *,
+    feet: list[tuple[int, np.ndarray]],
 ) -> None:
     """Refuse a first choice of balls the surfaces contradict (:func:`check_icp_agreement`), that rests
     on a ball placed unseen or a fragment without the surfaces' confirmation (:func:`_check_weakly_held`),
-    or under which the views do not stand round one trunk (:func:`check_trunk_agreement`).
+    or under which the views do not stand round one trunk (:func:`check_trunk_agreement`, on its views'
+    trunk ``feet`` as :func:`_trunk_feet` finds them).
 
     Raises
     ------
@@ -171,7 +175,7 @@ def _check_first_choice(
     """
     check_icp_agreement(_reports(first), config.icp)
     _check_weakly_held(first, config.icp)
-    check_trunk_agreement(first, clouds, grounds, config)
+    check_trunk_agreement(first, clouds, grounds, config, feet=feet)
 
 
 def _choices_made_again(
@@ -222,31 +226,26 @@ def _stands_made_again(
     a ball placed unseen refuse, stands in a view that finds no trunk of its own: not this way). Trunks
     apart do not refuse a choice the surfaces confirm: on sound registrations weeds and suckers pull one
     view's circle up to 19 cm aside (2036042: 15 cm)."""
+    feet = _trunk_feet(again, clouds, grounds, config)
     if _confirms_choice_made_again(again, config.icp):
         try:
-            check_trunk_agreement(again, clouds, grounds, config)
+            check_trunk_agreement(again, clouds, grounds, config, feet=feet)
         except RegistrationFailed:
             return False
         return True
-    if not _trunks_coincide(again, clouds, grounds, config):
+    if not _trunks_coincide(feet, config):
         return False
     try:
-        _check_first_choice(again, clouds, grounds, config)
+        _check_first_choice(again, clouds, grounds, config, feet=feet)
     except RegistrationFailed:
         return False
     return True
 
 
-def _trunks_coincide(
-    alignment: Alignment,
-    clouds: Sequence[ViewCloud],
-    grounds: Sequence[GroundPlane | None],
-    config: MeasureConfig,
-) -> bool | None:
-    """Whether the trunk each view finds on its own (:func:`_trunk_feet`) stands within
-    ``icp.trunk_coincidence_m`` of that of the first view (in capture order) that finds one; None where
-    fewer than two views find one."""
-    feet = _trunk_feet(alignment, clouds, grounds, config)
+def _trunks_coincide(feet: list[tuple[int, np.ndarray]], config: MeasureConfig) -> bool | None:
+    """Whether the trunk each view finds on its own (``feet`` as :func:`_trunk_feet` finds them) stands
+    within ``icp.trunk_coincidence_m`` of that of the first view (in capture order) that finds one; None
+    where fewer than two views find one."""
     if len(feet) < 2:
         return None
     (_, there), *others = feet
@@ -282,6 +281,8 @@ def check_trunk_agreement(
     clouds: Sequence[ViewCloud],
     grounds: Sequence[GroundPlane | None],
     config: MeasureConfig,
+    *,
+    feet: list[tuple[int, np.ndarray]] | None = None,
 ) -> None:
     """Refuse a registration under which the views do not stand round one trunk.
 
@@ -297,7 +298,8 @@ def check_trunk_agreement(
     moved the balls by 13 mm, and W came out 72 % wide; the two views' trunks stood 1.8 m apart in the world
     frame (views/2's best circle a trellis post that fell on views/1's trunk, and views/2 holding no trunk
     where views/1's stood), where on 36 sound registrations of mixed 2064 they stood within 4 cm but one (19
-    cm: suckers round the foot). A view whose trunk is not found is not judged.
+    cm: suckers round the foot). A view whose trunk is not found is not judged. ``feet``, where already
+    found (:func:`_trunk_feet`), are not looked for again.
 
     Raises
     ------
@@ -305,7 +307,8 @@ def check_trunk_agreement(
         Naming the first view whose trunk stands too far from the reference's.
     """
     tolerance = config.icp.max_trunk_mismatch_m
-    feet = _trunk_feet(alignment, clouds, grounds, config)
+    if feet is None:
+        feet = _trunk_feet(alignment, clouds, grounds, config)
 
     def sees_trunk_at(index: int, foot_world_m: np.ndarray) -> bool:
         """Whether view ``index`` holds a trunk's circle within the tolerance of another view's foot."""
