@@ -12,6 +12,7 @@ balls. These are simulated trees: the paper's figures are field measurements aga
 tape and pole, a different kind of number.
 
     .venv/bin/python bench/accuracy.py --scenario mixed --count 60 [--seed 2027] [--views 2] [--jobs 2]
+    .venv/bin/python bench/accuracy.py --scenario mixed --count 60 --seed 2131 2132  # each set, then pooled
     .venv/bin/python bench/accuracy.py --scenario all --count 10     # every family, one after another
     .venv/bin/python bench/accuracy.py --scenario mixed --sensor azure-kinect-nfov-binned  # another camera
     .venv/bin/python bench/accuracy.py --scenario mixed --slope-deg 6  # a hillside orchard
@@ -93,7 +94,9 @@ def _worst_error(result: dict) -> tuple[str, float]:
     return worst, errors[worst]
 
 
-def _report(scenario: str, results: list[dict], options: argparse.Namespace) -> None:
+def _report(title: str, results: list[dict], *, details: bool) -> None:
+    """Print one set's figures (``results`` of :func:`_measure_one`) under ``title``; with ``details``, every
+    failure's error and every tree's errors."""
     unsimulated = [r for r in results if "unsimulated" in r]
     simulated = [r for r in results if "unsimulated" not in r]
     failed = [r for r in simulated if "error" in r]
@@ -102,7 +105,7 @@ def _report(scenario: str, results: list[dict], options: argparse.Namespace) -> 
     wrong_spheres = [r for r in done if max(r["ball_errors_m"].values()) > WRONG_SPHERE_M]
     share = 100 * len(done) / max(len(simulated), 1)
     print(
-        f"\n== {scenario}: {len(done)} of {len(simulated)} measured ({share:.1f} %)"
+        f"\n== {title}: {len(done)} of {len(simulated)} measured ({share:.1f} %)"
         + (f" ({len(unsimulated)} more not simulated)" if unsimulated else "")
         + f", {len(failed)} failed, "
         f"{len(wrong)} confidently wrong (>{CONFIDENTLY_WRONG:.0%} off, no error), "
@@ -119,7 +122,7 @@ def _report(scenario: str, results: list[dict], options: argparse.Namespace) -> 
         )
     for reason, count in Counter(r["reason"] for r in failed).most_common():
         print(f"  failed {count}x: {reason}")
-    for r in failed if options.details else []:
+    for r in failed if details else []:
         print(f"    seed {r['seed']}: {r['error']}")
     for r in wrong:
         short, error = _worst_error(r)
@@ -148,7 +151,7 @@ def _report(scenario: str, results: list[dict], options: argparse.Namespace) -> 
                 f"  ({len(done) - len(framed)} cut by its frame left out)" if len(framed) < len(done) else ""
             )
             print(f"  {mode:<10}{short:<8}{r2:>8.3f}{rmse_cm:>10.2f}{are_pct:>8.2f}{paper:>13}{cut}")
-    if options.details:
+    if details:
         print(f"  {'seed':>12}" + "".join(f"{short + ' err cm':>12}" for short, _ in METRICS))
         for r in done:
             errors = [100 * (r["modes"]["merged"][key] - r["truth"][key]) for _, key in METRICS]
@@ -158,7 +161,14 @@ def _report(scenario: str, results: list[dict], options: argparse.Namespace) -> 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--count", type=int, default=30, help="Trees per scenario family.")
-    parser.add_argument("--seed", type=int, default=2026, help="Tree i of a family has seed SEED * 1000 + i.")
+    parser.add_argument(
+        "--seed",
+        type=int,
+        nargs="+",
+        default=[2026],
+        help="Tree i of a family has seed SEED * 1000 + i. Several seeds: each set is reported, then all "
+        "pooled (every figure over all their trees: a bound such as 98 %% measured needs more than 60).",
+    )
     parser.add_argument("--views", type=int, default=2)
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--scenario", default="green", choices=[*(s.value for s in Scenario), "all"])
@@ -204,26 +214,42 @@ def main() -> None:
         + (", a stake beside every trunk" if options.stake else "")
         + (", posts within every crown's reach" if options.near_posts else "")
         + ("" if options.pitch_deg is None else f", cameras held {options.pitch_deg:g} degrees up")
-        + f", seeds {options.seed * 1000} to {options.seed * 1000 + options.count - 1}"
+        + ", seeds "
+        + ", ".join(f"{seed * 1000} to {seed * 1000 + options.count - 1}" for seed in options.seed)
     )
     for scenario in scenarios:
-        with tempfile.TemporaryDirectory(prefix="canopy-bench-") as scratch:
-            simulated = {
-                "n_views": options.views,
-                "sensor": options.sensor,
-                "slope_deg": options.slope_deg,
-                "lean_deg": options.lean_deg,
-                "stake": options.stake,
-                "pitch_deg": options.pitch_deg,
-                "near_posts": options.near_posts,
-            }
-            work = [
-                (Path(scratch) / f"tree_{i:03d}", options.seed * 1000 + i, scenario, simulated)
-                for i in range(options.count)
-            ]
-            with ProcessPoolExecutor(max_workers=options.jobs) as pool:
-                results = list(pool.map(_measure_one, work))
-        _report(scenario, results, options)
+        pooled = []
+        for seed in options.seed:
+            results = _run_set(scenario, seed, options)
+            if len(options.seed) > 1:
+                _report(f"{scenario}, seed {seed}", results, details=options.details)
+            pooled.extend(results)
+        title = (
+            scenario
+            if len(options.seed) == 1
+            else f"{scenario}, seeds {', '.join(map(str, options.seed))} pooled"
+        )
+        _report(title, pooled, details=options.details and len(options.seed) == 1)
+
+
+def _run_set(scenario: str, seed: int, options: argparse.Namespace) -> list[dict]:
+    """Simulate and measure ``options.count`` trees of one scenario family from one seed."""
+    with tempfile.TemporaryDirectory(prefix="canopy-bench-") as scratch:
+        simulated = {
+            "n_views": options.views,
+            "sensor": options.sensor,
+            "slope_deg": options.slope_deg,
+            "lean_deg": options.lean_deg,
+            "stake": options.stake,
+            "pitch_deg": options.pitch_deg,
+            "near_posts": options.near_posts,
+        }
+        work = [
+            (Path(scratch) / f"tree_{i:03d}", seed * 1000 + i, scenario, simulated)
+            for i in range(options.count)
+        ]
+        with ProcessPoolExecutor(max_workers=options.jobs) as pool:
+            return list(pool.map(_measure_one, work))
 
 
 if __name__ == "__main__":
