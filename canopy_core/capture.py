@@ -55,6 +55,7 @@ __all__ = [
     "parse_manifest",
     "read_capture",
     "stored_manifest",
+    "unknown_key",
 ]
 
 CAPTURE_FORMAT = "canopy-capture/1"
@@ -285,7 +286,7 @@ def _raise_validation(
         location = ".".join(str(part) for part in error["loc"])
         message = error["msg"].removeprefix("Value error, ")
         if error["type"] == "extra_forbidden":
-            message = _unknown_key(model, error["loc"])
+            message = unknown_key(model, error["loc"])
         problems.append(f"{location}: {message}" if location else message)
     field = ".".join(str(part) for part in errors[0]["loc"]) or None
     hint = (
@@ -296,8 +297,9 @@ def _raise_validation(
     raise CaptureError("; ".join(problems), file=file, view=view, field=field, hint=hint) from exc
 
 
-def _unknown_key(model: type[BaseModel], location: tuple[int | str, ...]) -> str:
-    """The message for the unknown key at ``location``: the nearest key the format knows there, if any."""
+def unknown_key(model: type[BaseModel], location: tuple[int | str, ...]) -> str:
+    """The message for the unknown key at ``location`` of ``model`` (a capture file's, or the measurement
+    settings'): the nearest key known there, if any."""
     known = _keys_at(model, location[:-1])
     close = difflib.get_close_matches(str(location[-1]), known, n=1, cutoff=0.6)
     suggestion = f"; did you mean {close[0]!r}?" if close else ""

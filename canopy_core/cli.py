@@ -52,6 +52,64 @@ CaptureArg = Annotated[
     Path, typer.Argument(metavar="CAPTURE", help="Capture folder (the one holding capture.json).")
 ]
 JsonOpt = Annotated[bool, typer.Option("--json", help="Print one JSON object instead of a summary.")]
+SetOpt = Annotated[
+    list[str] | None,
+    typer.Option(
+        "--set",
+        metavar="KEY=VALUE",
+        help="Override one measurement setting for this run, e.g. --set metrics.max_thin_top_m=0.4 "
+        "(repeatable; KEY is the setting's dotted path, VALUE is read as JSON, else as text). Every "
+        "setting, its default and unit: canopy settings.",
+    ),
+]
+
+
+def settings_overrides(settings: list[str] | None) -> dict[str, Any] | None:
+    """The nested overrides of ``--set KEY=VALUE`` options (``metrics.max_thin_top_m=0.4`` becomes
+    ``{"metrics": {"max_thin_top_m": 0.4}}``), the shape the service's job ``config`` takes; None for none.
+
+    VALUE is read as JSON (numbers, true/false, lists), else kept as text (a colour name). Whether the
+    setting exists and its value is valid is the configuration's to say, naming the field.
+
+    Raises
+    ------
+    CanopyError
+        A setting without ``=`` or with an empty part of its path, or one path set both to a value and to
+        settings under it.
+    """
+    if not settings:
+        return None
+    overrides: dict[str, Any] = {}
+    for setting in settings:
+        key, equals, text = setting.partition("=")
+        path = key.strip().split(".")
+        if not equals or not all(path):
+            raise CanopyError(
+                f"--set {setting!r}: expected KEY=VALUE with KEY a setting's dotted path, "
+                "e.g. metrics.max_thin_top_m=0.4",
+                field="--set",
+            )
+        try:
+            value = json.loads(text)
+        except json.JSONDecodeError:
+            value = text
+        node = overrides
+        for depth, part in enumerate(path):
+            if depth == len(path) - 1:
+                if isinstance(node.get(part), dict):
+                    raise CanopyError(
+                        f"--set {setting!r}: {key.strip()} is a group of settings; set the ones inside it",
+                        field="--set",
+                    )
+                node[part] = value
+            else:
+                node = node.setdefault(part, {})
+                if not isinstance(node, dict):
+                    raise CanopyError(
+                        f"--set {setting!r}: {'.'.join(path[: depth + 1])} is set to a value already",
+                        field="--set",
+                    )
+    return overrides
 
 
 def _print_json(document: dict[str, Any]) -> None:
@@ -66,6 +124,7 @@ def measure(
         Path | None,
         typer.Option("--cloud", help="Write the fused, cropped cloud (world frame) as binary PLY."),
     ] = None,
+    settings: SetOpt = None,
 ) -> None:
     """Register the views of a capture and measure the tree: height, width, thickness and more."""
     from canopy_core.cloud_io import write_ply
@@ -73,7 +132,7 @@ def measure(
 
     if cloud is not None and not cloud.parent.resolve().is_dir():
         raise CanopyError(f"cannot write the cloud: folder {cloud.parent} does not exist", field="--cloud")
-    result = run_measure(capture)
+    result = run_measure(capture, overrides=settings_overrides(settings))
     if cloud is not None:
         try:
             write_ply(cloud, result.cloud)
@@ -93,6 +152,14 @@ def measure(
 
 
 @app.command()
+def settings() -> None:
+    """Print every measurement setting, its default and meaning (Markdown): what --set may change."""
+    from canopy_core.settings_reference import settings_reference
+
+    sys.stdout.write(settings_reference())
+
+
+@app.command()
 def balls(
     capture: CaptureArg,
     as_json: JsonOpt = False,
@@ -106,6 +173,7 @@ def balls(
     show_all: Annotated[
         bool, typer.Option("--all", help="List every rejected sphere (by default 3 per colour, 5 in JSON).")
     ] = False,
+    settings: SetOpt = None,
 ) -> None:
     """Show per view and colour the ball chosen, as the measurement chooses it, and why each other sphere
     was not (radius, points, residual, coverage, colour, floating, taken, inconsistent).
@@ -116,6 +184,7 @@ def balls(
     from canopy_core.capture import load_capture
     from canopy_core.measure import ball_evidence, config_for, filtered_cloud
 
+    overrides = settings_overrides(settings)
     if preview is not None:
         try:
             preview.mkdir(parents=True, exist_ok=True)
@@ -126,7 +195,7 @@ def balls(
         if not os.access(preview, os.W_OK):
             raise CanopyError(f"cannot write to the preview folder {preview}", field="--preview")
     loaded = load_capture(capture)
-    config = config_for(loaded.manifest)
+    config = config_for(loaded.manifest, overrides)
     views, grounds = ball_evidence([filtered_cloud(view, config.filters) for view in loaded.views], config)
     report = ball_report(views, config.balls, grounds=grounds)
     if preview is not None:

@@ -57,9 +57,16 @@ class BallSet(_Section):
     """The calibration balls a capture used: their size and colours (capture.json's calibration_balls)."""
 
     diameter_m: float = Field(0.10, gt=0.0, le=2.0, allow_inf_nan=False, description="Ball diameter, m.")
-    colors: list[str] = Field(default_factory=lambda: ["red", "yellow", "blue"], min_length=1)
+    colors: list[str] = Field(
+        default_factory=lambda: ["red", "yellow", "blue"],
+        min_length=1,
+        description="The balls' colours, each once; registration and the ground frame need three.",
+    )
     hsv: dict[str, HsvRange] = Field(
-        default_factory=dict, description="Per-colour HSV ranges overriding DEFAULT_HSV_RANGES."
+        default_factory=dict,
+        description="Per-colour HSV ranges, [[h, s, v] low, [h, s, v] high] in OpenCV units (hue 0-180, a "
+        "low hue above the high one wrapping round red; saturation and value 0-255), overriding the built-in "
+        "ones of red, orange, yellow, green, blue and purple, or giving another colour's.",
     )
 
     @model_validator(mode="after")
@@ -97,7 +104,12 @@ class BallConfig(BallSet):
     max_rms_m: float = Field(
         0.012, gt=0.0, description="Largest RMS distance of inliers to the fitted sphere."
     )
-    ransac_iterations: int = Field(300, ge=10)
+    ransac_iterations: int = Field(
+        300,
+        ge=10,
+        description="Sphere hypotheses of the known radius (through three points each) tried per candidate "
+        "before its least-squares fit.",
+    )
     hue_spread: float = Field(
         8.0,
         gt=0.0,
@@ -383,7 +395,9 @@ class FilterConfig(_Section):
         description="A pixel is flying when its window holds depths both nearer and farther than it by more "
         "than this fraction of its own depth (plus flying_jump_min_m).",
     )
-    flying_jump_min_m: float = Field(0.02, ge=0.0)
+    flying_jump_min_m: float = Field(
+        0.02, ge=0.0, description="The depth step a flying pixel's window shows at least, besides the ratio."
+    )
     sparse_radius_px: float = Field(
         4.0, gt=0.0, description="Neighbourhood of the sparse-point check, in pixels at the point's range."
     )
@@ -429,7 +443,7 @@ class GroundConfig(_Section):
 class IcpConfig(_Section):
     """ICP refinement after the ball registration (``refine.py``)."""
 
-    enabled: bool = True
+    enabled: bool = Field(True, description="Refine the ball registration by ICP (false: the balls alone).")
     max_height_m: float = Field(
         0.6,
         gt=0.0,
@@ -437,8 +451,10 @@ class IcpConfig(_Section):
         "opposite sides of a row both see (their foliage surfaces differ).",
     )
     voxel_m: float = Field(0.02, gt=0.0, description="Voxel size the clouds are thinned to for ICP.")
-    max_correspondence_m: float = Field(0.03, gt=0.0)
-    max_iterations: int = Field(30, ge=1)
+    max_correspondence_m: float = Field(
+        0.03, gt=0.0, description="A point is matched to the other view's nearest point only within this."
+    )
+    max_iterations: int = Field(30, ge=1, description="ICP iterations, each re-matching every point.")
     max_ball_shift_m: float = Field(
         0.01,
         gt=0.0,

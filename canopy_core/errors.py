@@ -56,7 +56,7 @@ class CanopyError(Exception):
         text = f"{where}: {self.message}" if where else self.message
         if self.field and self.field not in self.message:
             text = f"{text} (field {self.field})"
-        return f"{text}. {self.hint}" if self.hint else text
+        return _with_hint(text, self.hint)
 
     def __reduce__(self) -> tuple[object, ...]:
         # Keyword-only locations would be lost by Exception's default pickling (it replays ``args``);
@@ -108,8 +108,7 @@ class BallNotFound(MeasurementError):
         self.color = color
 
     def __str__(self) -> str:
-        text = f"{self.view}: {self.color} ball: {self.message}"
-        return f"{text}. {self.hint}" if self.hint else text
+        return _with_hint(f"{self.view}: {self.color} ball: {self.message}", self.hint)
 
     def to_dict(self) -> dict[str, str]:
         """As :meth:`CanopyError.to_dict`, with the ball's ``color``."""
@@ -120,3 +119,10 @@ class RegistrationFailed(MeasurementError):
     """The views could not be brought into one frame (balls inconsistent between views, or too few)."""
 
     code = "registration_failed"
+
+
+def _with_hint(text: str, hint: str | None) -> str:
+    """``text`` and then ``hint`` as a sentence of its own (no second stop after a question)."""
+    if not hint:
+        return text
+    return f"{text} {hint}" if text.endswith(("?", ".", "!")) else f"{text}. {hint}"

@@ -592,8 +592,9 @@ def canopy_metrics(
             f"tip ({config.max_thin_top_m:.2f} m): most likely a support stake standing above the crown, "
             "which would be measured as the tree's top",
             field="metrics.max_thin_top_m",
-            hint="a stake above the crown cannot be told from the tree yet; if the leader itself is bare "
-            "that far, raise metrics.max_thin_top_m",
+            hint="a stake above the crown cannot be told from the tree yet; if no stake stands above this "
+            f"tree and its leader is bare that far, measure it with metrics.max_thin_top_m={thin:.2f} "
+            "(canopy measure --set, or a job's config)",
         )
     base_kde = crown_base_kde(
         tree_points[:, 2], height_m=height, bandwidth_m=config.kde_bandwidth_m, threshold=config.kde_threshold

@@ -97,3 +97,23 @@ def test_the_checker_finds_what_does_not_resolve() -> None:
         "2: service/nowhere.py",
         "2: nothing.py",
     ]
+
+
+def test_the_settings_reference_is_the_one_the_code_writes() -> None:
+    from canopy_core.settings_reference import settings_reference
+
+    written = (ROOT / "docs" / "configuration.md").read_text(encoding="utf-8")
+    assert written == settings_reference(), "stale: run `canopy settings > docs/configuration.md`"
+
+
+def test_every_setting_says_what_it_means() -> None:
+    from canopy_core.config import MeasureConfig
+
+    defaults = MeasureConfig()
+    silent = [
+        f"{section}.{name}"
+        for section in MeasureConfig.model_fields
+        for name, field in type(getattr(defaults, section)).model_fields.items()
+        if not field.description
+    ]
+    assert silent == []

@@ -219,3 +219,70 @@ def test_simulate_refuses_an_unknown_sensor_naming_the_known_ones(tmp_path: Path
     assert done.returncode == 2
     assert "unknown sensor 'kinect-v3'" in done.stderr and "azure-kinect-nfov-binned" in done.stderr
     assert not (tmp_path / "out").exists()
+
+
+def test_set_changes_a_setting_for_that_measurement_only(capture: Path) -> None:
+    done = _run(
+        "measure", str(capture), "--json", "--set", "metrics.max_thin_top_m=0.4", "--set", "roi.radius_m=1.6"
+    )
+    assert done.returncode == 0, done.stderr
+    config = json.loads(done.stdout)["config"]
+    assert config["metrics"]["max_thin_top_m"] == 0.4 and config["roi"]["radius_m"] == 1.6
+    # It takes effect: a region narrower than the crown is refused at its wall, naming the setting.
+    narrow = _run("measure", str(capture), "--set", "roi.radius_m=0.3")
+    assert narrow.returncode == 2 and "region of interest's wall" in narrow.stderr
+    assert "roi.radius_m" in narrow.stderr
+    again = _run("measure", str(capture), "--json")
+    assert json.loads(again.stdout)["config"]["roi"]["radius_m"] != 1.6  # nothing kept for the next run
+
+
+@pytest.mark.parametrize(
+    ("settings", "named"),
+    [
+        (["metrics.max_thin_top=0.4"], "metrics.max_thin_top: unknown field; did you mean 'max_thin_top_m'?"),
+        (["roi.radius_m=wide"], "roi.radius_m: Input should be a valid number"),
+        (["metrics"], "--set 'metrics': expected KEY=VALUE"),
+        (["metrics..edge_px=1"], "--set 'metrics..edge_px=1': expected KEY=VALUE"),
+        (["metrics=1", "metrics.edge_px=1"], "metrics is set to a value already"),
+        (["metrics.edge_px=1", "metrics=1"], "metrics is a group of settings"),
+    ],
+)
+def test_set_refuses_a_setting_that_is_not_one_in_one_line_naming_it(
+    capture: Path, settings: list[str], named: str
+) -> None:
+    done = _run("measure", str(capture), *(arg for setting in settings for arg in ("--set", setting)))
+    assert done.returncode == 2 and done.stdout == ""
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and named in lines[0]
+
+
+def test_set_reads_json_values_and_keeps_other_text_as_text() -> None:
+    from canopy_core.cli import settings_overrides
+
+    assert settings_overrides(None) is None
+    assert settings_overrides(
+        ["metrics.max_thin_top_m=0.4", "icp.enabled=false", 'balls.colors=["red", "blue"]', "x.name=red"]
+    ) == {
+        "metrics": {"max_thin_top_m": 0.4},
+        "icp": {"enabled": False},
+        "balls": {"colors": ["red", "blue"]},
+        "x": {"name": "red"},
+    }
+
+
+def test_balls_take_set_settings_too(capture: Path) -> None:
+    done = _run("balls", str(capture), "--json", "--set", 'balls.colors=["yellow"]')
+    assert done.returncode == 0, done.stderr
+    views = json.loads(done.stdout)["views"]
+    assert views and all(list(fits) == ["yellow"] for fits in views.values())
+
+
+def test_settings_lists_every_setting_with_its_default() -> None:
+    from canopy_core.config import MeasureConfig
+
+    done = _run("settings")
+    assert done.returncode == 0, done.stderr
+    defaults = MeasureConfig().model_dump(mode="json")
+    for section, values in defaults.items():
+        for name, value in values.items():
+            assert f"| `{section}.{name}` | `{json.dumps(value)}` | " in done.stdout

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import itertools
+import re
 
 import numpy as np
 import pytest
@@ -411,12 +412,14 @@ def test_a_stake_standing_above_the_crown_is_refused_not_measured_as_its_top() -
     with pytest.raises(MeasurementError, match="thin as a pole") as refused:
         _metrics(points, point_colors)
     assert refused.value.field == "metrics.max_thin_top_m"
-    # A leader whose bare tip stands out as far may be measured by raising the bound.
+    # A leader whose bare tip stands out as far may be measured with the bound the hint names.
+    named = re.search(r"metrics\.max_thin_top_m=([0-9.]+) ", refused.value.hint or "")
+    assert named is not None, refused.value.hint
     allowed = canopy_metrics(
         points,
         trunk=PLUMB,
         foliage=foliage_mask(point_colors, min_index=0.15),
-        config=MetricsConfig(max_thin_top_m=0.5),
+        config=MetricsConfig(max_thin_top_m=float(named.group(1))),
     )
     assert allowed.height_m > crown_top + 0.25
 
