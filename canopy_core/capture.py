@@ -13,7 +13,6 @@ the operator) goes under ``extras``, which is kept and never read.
 
 from __future__ import annotations
 
-import difflib
 import json
 import re
 from collections.abc import Callable, Collection
@@ -36,6 +35,7 @@ from pydantic import (
 from canopy_core.config import BallSet, RoiConfig
 from canopy_core.errors import CaptureError
 from canopy_core.images import DEFAULT_MAX_PIXELS, decode_color, decode_depth
+from canopy_core.validation import validation_problems
 
 __all__ = [
     "CAPTURE_FORMAT",
@@ -55,7 +55,6 @@ __all__ = [
     "parse_manifest",
     "read_capture",
     "stored_manifest",
-    "unknown_key",
 ]
 
 CAPTURE_FORMAT = "canopy-capture/1"
@@ -278,49 +277,14 @@ class Capture:
 def _raise_validation(
     exc: ValidationError, model: type[BaseModel], *, file: str, view: str | None = None
 ) -> None:
-    """Raise one :class:`CaptureError` listing every problem of ``exc`` (unknown keys first: a misspelt
-    key also makes the key it was meant to be missing), naming the first one's field."""
-    errors = sorted(exc.errors(), key=lambda error: error["type"] != "extra_forbidden")
-    problems = []
-    for error in errors:
-        location = ".".join(str(part) for part in error["loc"])
-        message = error["msg"].removeprefix("Value error, ")
-        if error["type"] == "extra_forbidden":
-            message = unknown_key(model, error["loc"])
-        problems.append(f"{location}: {message}" if location else message)
-    field = ".".join(str(part) for part in errors[0]["loc"]) or None
+    """Raise one :class:`CaptureError` listing every problem of ``exc``, naming the first one's field."""
+    problems = validation_problems(exc, model)
     hint = (
         "keys the format does not know go under 'extras' (docs/capture-format.md)"
-        if errors[0]["type"] == "extra_forbidden"
+        if problems.unknown_key
         else None
     )
-    raise CaptureError("; ".join(problems), file=file, view=view, field=field, hint=hint) from exc
-
-
-def unknown_key(model: type[BaseModel], location: tuple[int | str, ...]) -> str:
-    """The message for the unknown key at ``location`` of ``model`` (a capture file's, or the measurement
-    settings'): the nearest key known there, if any."""
-    known = _keys_at(model, location[:-1])
-    close = difflib.get_close_matches(str(location[-1]), known, n=1, cutoff=0.6)
-    suggestion = f"; did you mean {close[0]!r}?" if close else ""
-    return f"unknown field{suggestion}"
-
-
-def _keys_at(model: type[BaseModel], path: tuple[int | str, ...]) -> list[str]:
-    """The keys the model nested at ``path`` in ``model`` knows (none when the path leaves the models)."""
-    for part in path:
-        if isinstance(part, int) or part not in model.model_fields:
-            return []
-        annotation = model.model_fields[part].annotation
-        nested = [arg for arg in (annotation, *getattr(annotation, "__args__", ())) if _is_model(arg)]
-        if not nested:
-            return []
-        model = nested[0]
-    return list(model.model_fields)
-
-
-def _is_model(annotation: object) -> bool:
-    return isinstance(annotation, type) and issubclass(annotation, BaseModel)
+    raise CaptureError(problems.message, file=file, view=view, field=problems.field, hint=hint) from exc
 
 
 def _load_json(data: bytes, *, file: str, view: str | None, stored: bool = False) -> Any:

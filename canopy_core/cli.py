@@ -58,57 +58,51 @@ SetOpt = Annotated[
         "--set",
         metavar="KEY=VALUE",
         help="Override one measurement setting for this run, e.g. --set metrics.max_thin_top_m=0.4 "
-        "(repeatable; KEY is the setting's dotted path, VALUE is read as JSON, else as text). Every "
-        "setting, its default and unit: canopy settings.",
+        "(repeatable; KEY is the setting's dotted path, VALUE is JSON). Every setting, its default and "
+        "meaning: canopy settings.",
     ),
 ]
 
 
-def settings_overrides(settings: list[str] | None) -> dict[str, Any] | None:
+def settings_overrides(assignments: list[str] | None) -> dict[str, Any] | None:
     """The nested overrides of ``--set KEY=VALUE`` options (``metrics.max_thin_top_m=0.4`` becomes
-    ``{"metrics": {"max_thin_top_m": 0.4}}``), the shape the service's job ``config`` takes; None for none.
+    ``{"metrics": {"max_thin_top_m": 0.4}}``), the shape a service job's ``config`` has, combined as the
+    settings combine it (:func:`canopy_core.config.deep_merge`: where two set one setting, the later wins);
+    None for none.
 
-    VALUE is read as JSON (numbers, true/false, lists), else kept as text (a colour name). Whether the
-    setting exists and its value is valid is the configuration's to say, naming the field.
+    VALUE is JSON: a number, true or false, a list, an object. Whether the setting exists and its value is
+    valid is the configuration's to say, naming the setting.
 
     Raises
     ------
     CanopyError
-        A setting without ``=`` or with an empty part of its path, or one path set both to a value and to
-        settings under it.
+        An assignment without ``=``, with an empty part of its dotted KEY, or whose VALUE is not JSON.
     """
-    if not settings:
+    from canopy_core.config import deep_merge
+
+    if not assignments:
         return None
     overrides: dict[str, Any] = {}
-    for setting in settings:
-        key, equals, text = setting.partition("=")
-        path = key.strip().split(".")
+    for assignment in assignments:
+        key, equals, text = assignment.partition("=")
+        path = [part.strip() for part in key.split(".")]
         if not equals or not all(path):
             raise CanopyError(
-                f"--set {setting!r}: expected KEY=VALUE with KEY a setting's dotted path, "
+                f"--set {assignment!r}: expected KEY=VALUE with KEY a setting's dotted path, "
                 "e.g. metrics.max_thin_top_m=0.4",
                 field="--set",
             )
         try:
             value = json.loads(text)
         except json.JSONDecodeError:
-            value = text
-        node = overrides
-        for depth, part in enumerate(path):
-            if depth == len(path) - 1:
-                if isinstance(node.get(part), dict):
-                    raise CanopyError(
-                        f"--set {setting!r}: {key.strip()} is a group of settings; set the ones inside it",
-                        field="--set",
-                    )
-                node[part] = value
-            else:
-                node = node.setdefault(part, {})
-                if not isinstance(node, dict):
-                    raise CanopyError(
-                        f"--set {setting!r}: {'.'.join(path[: depth + 1])} is set to a value already",
-                        field="--set",
-                    )
+            raise CanopyError(
+                f"--set {assignment!r}: {text.strip()!r} is not a JSON value; write a number as 0.4, a "
+                'switch as true or false, a list as ["red", "blue"]',
+                field="--set",
+            ) from None
+        for part in reversed(path):
+            value = {part: value}
+        overrides = deep_merge(overrides, value)
     return overrides
 
 
@@ -124,7 +118,7 @@ def measure(
         Path | None,
         typer.Option("--cloud", help="Write the fused, cropped cloud (world frame) as binary PLY."),
     ] = None,
-    settings: SetOpt = None,
+    assignments: SetOpt = None,
 ) -> None:
     """Register the views of a capture and measure the tree: height, width, thickness and more."""
     from canopy_core.cloud_io import write_ply
@@ -132,7 +126,7 @@ def measure(
 
     if cloud is not None and not cloud.parent.resolve().is_dir():
         raise CanopyError(f"cannot write the cloud: folder {cloud.parent} does not exist", field="--cloud")
-    result = run_measure(capture, overrides=settings_overrides(settings))
+    result = run_measure(capture, overrides=settings_overrides(assignments))
     if cloud is not None:
         try:
             write_ply(cloud, result.cloud)
@@ -173,7 +167,7 @@ def balls(
     show_all: Annotated[
         bool, typer.Option("--all", help="List every rejected sphere (by default 3 per colour, 5 in JSON).")
     ] = False,
-    settings: SetOpt = None,
+    assignments: SetOpt = None,
 ) -> None:
     """Show per view and colour the ball chosen, as the measurement chooses it, and why each other sphere
     was not (radius, points, residual, coverage, colour, floating, taken, inconsistent).
@@ -184,7 +178,7 @@ def balls(
     from canopy_core.capture import load_capture
     from canopy_core.measure import ball_evidence, config_for, filtered_cloud
 
-    overrides = settings_overrides(settings)
+    overrides = settings_overrides(assignments)
     if preview is not None:
         try:
             preview.mkdir(parents=True, exist_ok=True)

@@ -24,6 +24,7 @@ __all__ = [
     "PoleConfig",
     "RoiConfig",
     "WireConfig",
+    "deep_merge",
 ]
 
 
@@ -50,7 +51,10 @@ DEFAULT_HSV_RANGES: dict[str, list[list[int]]] = {
 
 
 class _Section(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    """A section of settings: unknown keys are refused, and so are infinite or NaN numbers (the results are
+    written as strict JSON)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class BallSet(_Section):
@@ -730,14 +734,16 @@ class MeasureConfig(_Section):
 
     def merged(self, overrides: dict[str, Any]) -> MeasureConfig:
         """A copy with ``overrides`` (a nested dict of the same shape, any depth) applied and validated."""
-        return MeasureConfig.model_validate(_deep_merge(self.model_dump(), overrides))
+        return MeasureConfig.model_validate(deep_merge(self.model_dump(), overrides))
 
 
-def _deep_merge(base: dict[str, Any], overrides: dict[str, Any]) -> dict[str, Any]:
+def deep_merge(base: dict[str, Any], overrides: dict[str, Any]) -> dict[str, Any]:
+    """``base`` with ``overrides`` applied at any depth: where both hold a dict the two are merged, else the
+    override's value replaces the base's (the way several settings overrides, or a job's, are combined)."""
     out = dict(base)
     for key, value in overrides.items():
         if isinstance(value, dict) and isinstance(out.get(key), dict):
-            out[key] = _deep_merge(out[key], value)
+            out[key] = deep_merge(out[key], value)
         else:
             out[key] = value
     return out

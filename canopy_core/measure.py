@@ -22,7 +22,7 @@ from canopy_core.alignment import align_views
 from canopy_core.backproject import ViewCloud, backproject
 from canopy_core.ball_selection import BallChoice
 from canopy_core.balls import ViewBallCandidates, find_ball_candidates
-from canopy_core.capture import Capture, CaptureManifest, View, load_capture, unknown_key
+from canopy_core.capture import Capture, CaptureManifest, View, load_capture
 from canopy_core.cloud_io import Cloud, PointClass
 from canopy_core.config import FilterConfig, MeasureConfig
 from canopy_core.errors import CaptureError, ConfigError, MeasurementError, RegistrationFailed
@@ -50,6 +50,7 @@ from canopy_core.register import apply
 from canopy_core.segment import find_wires, tree_component, wire_mask
 from canopy_core.spheres import SphereFit
 from canopy_core.trunk_axis import TrunkAxis, follow_trunk
+from canopy_core.validation import validation_problems
 from canopy_core.visibility import seen_through
 
 __all__ = [
@@ -188,16 +189,13 @@ def config_for(manifest: CaptureManifest, overrides: dict[str, Any] | None = Non
     try:
         return config.merged(overrides)
     except ValidationError as exc:
-        first = exc.errors()[0]
-        field = ".".join(str(part) for part in first["loc"])
-        if first["type"] == "extra_forbidden":
-            raise ConfigError(
-                f"{field}: {unknown_key(MeasureConfig, first['loc'])}",
-                field=field or None,
-                hint="`canopy settings` lists every setting",
-            ) from exc
+        problems = validation_problems(exc, MeasureConfig)
         raise ConfigError(
-            f"{field}: {first['msg'].removeprefix('Value error, ')}", field=field or None
+            problems.message,
+            field=problems.field,
+            hint="docs/configuration.md lists every setting (`canopy settings` prints it)"
+            if problems.unknown_key
+            else None,
         ) from exc
 
 

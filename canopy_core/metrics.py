@@ -13,6 +13,7 @@ crown, not of the lowest green thing, and none of them counts in H, W or the vol
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -593,7 +594,8 @@ def canopy_metrics(
             "which would be measured as the tree's top",
             field="metrics.max_thin_top_m",
             hint="a stake above the crown cannot be told from the tree yet; if no stake stands above this "
-            f"tree and its leader is bare that far, measure it with metrics.max_thin_top_m={thin:.2f} "
+            f"tree and its leader is bare that far, measure it with metrics.max_thin_top_m="
+            f"{math.ceil(round(thin * 100.0, 6)) / 100.0:.2f} "
             "(canopy measure --set, or a job's config)",
         )
     base_kde = crown_base_kde(

@@ -17,14 +17,16 @@ __all__ = ["settings_reference"]
 _INTRODUCTION = """\
 # Measurement settings
 
-Every setting of the measurement, its default and what it means, by section. Units are in the names:
-`_m` metres, `_deg` degrees, `_px` pixels; a name without one is a count, a share or a switch, as its
-meaning says.
+Every setting of the measurement, its default and what it means, by section. Most units are in the
+names: `_m` metres, `_deg` degrees, `_px` pixels; for the others (counts, shares, switches, OpenCV's hue
+units) the meaning says. A capture's own settings, capture.json's `calibration_balls` (the `balls`
+settings `diameter_m`, `colors` and `hsv`) and `roi`, replace these defaults for that capture, and the
+ways below replace both.
 
 A setting is changed for one measurement, never for good:
 
 - offline: `canopy measure CAPTURE --set metrics.max_thin_top_m=0.4` (and `canopy balls`; `--set` may be
-  given more than once; its value is read as JSON, else as text);
+  given more than once; its value is JSON: `0.4`, `true`, `["red", "blue"]`);
 - through the service: the job's optional body, `{"config": {"metrics": {"max_thin_top_m": 0.4}}}` (see
   docs/api.md);
 - in the capture itself: capture.json's `calibration_balls` and `roi` (see docs/capture-format.md).
@@ -46,10 +48,11 @@ def settings_reference() -> str:
     parts = [_INTRODUCTION]
     for section in MeasureConfig.model_fields:
         model: BaseModel = getattr(defaults, section)
+        values = model.model_dump(mode="json")
         parts.append(f"\n## `{section}`\n\n{_purpose(type(model))}\n\n")
         parts.append("| setting | default | meaning |\n| --- | --- | --- |\n")
         for name, field in type(model).model_fields.items():
-            default = json.dumps(model.model_dump(mode="json")[name])
+            default = json.dumps(values[name])
             parts.append(f"| `{section}.{name}` | `{default}` | {_cell(field.description or '')} |\n")
     return "".join(parts)
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pickle
 
-from canopy_core.errors import BallNotFound, CaptureError
+from canopy_core.errors import BallNotFound, CaptureError, ConfigError
 
 
 def test_capture_error_names_file_and_field_in_one_line() -> None:
@@ -29,3 +29,11 @@ def test_errors_survive_pickling_with_their_locations() -> None:
     error = BallNotFound("only 3 points", view="views/1", color="blue")
     copy = pickle.loads(pickle.dumps(error))
     assert type(copy) is BallNotFound and copy.to_dict() == error.to_dict() and str(copy) == str(error)
+
+
+def test_a_hint_follows_its_message_as_a_sentence_of_its_own() -> None:
+    assert str(ConfigError("roi.radius_m: too large", hint="see docs")) == "roi.radius_m: too large. see docs"
+    asked = ConfigError("metrics.edge: unknown field; did you mean 'edge_px'?", hint="see docs")
+    assert str(asked) == "metrics.edge: unknown field; did you mean 'edge_px'? see docs"
+    found = BallNotFound("only 3 points.", view="views/1", color="red", hint="re-lay it")
+    assert str(found) == "views/1: red ball: only 3 points. re-lay it"
