@@ -804,6 +804,23 @@ def test_job_with_invalid_config_override_is_refused_naming_the_field_and_not_cr
     assert jobs_of(client, capture_id) == []
 
 
+def test_job_with_an_infinite_setting_is_refused_naming_it_and_not_created(
+    client: httpx.Client, capture_id: int
+) -> None:
+    """Python's JSON reads Infinity and NaN; the results are strict JSON, so a setting cannot be either."""
+    stored(client, capture_id, "views/1/camera.json", camera_json())
+    stored(client, capture_id, "views/1/depth.png", depth_png())
+    stored(client, capture_id, "views/1/color.png", color_image())
+    for value in ("Infinity", "NaN"):
+        response = client.post(
+            f"/v1/captures/{capture_id}/jobs",
+            content=f'{{"config": {{"metrics": {{"max_thin_top_m": {value}}}}}}}',
+            headers={"Content-Type": "application/json"},
+        )
+        assert_problem(response, 422, field="config.metrics.max_thin_top_m")
+    assert jobs_of(client, capture_id) == []
+
+
 # --- the blob store --------------------------------------------------------------------------------------
 
 
