@@ -877,13 +877,13 @@ def _vote_peaks(votes: np.ndarray, weights: np.ndarray, scene: _Scene, radius_m:
     if votes.shape[0] == 0:
         return []
     tree = cKDTree(votes)
-    close = tree.query_ball_point(votes, r=_VOTE_RADIUS * radius_m, return_length=True, workers=-1)
+    close = tree.query_ball_point(votes, r=_VOTE_RADIUS * radius_m, return_length=True)
     strength = close / expected
     eligible = np.flatnonzero(strength >= _MIN_PEAK)
     eligible = eligible[np.argsort(-strength[eligible], kind="stable")[:_MAX_PEAK_VOTES]]
-    around = tree.query_ball_point(votes[eligible], r=radius_m, return_length=True, workers=-1)
+    around = tree.query_ball_point(votes[eligible], r=radius_m, return_length=True)
     eligible = eligible[close[eligible] >= _MIN_CONCENTRATION * around]
-    members = tree.query_ball_point(votes[eligible], r=_VOTE_RADIUS * radius_m, workers=-1)
+    members = tree.query_ball_point(votes[eligible], r=_VOTE_RADIUS * radius_m)
     weighted = np.array([weights[m].sum() for m in members]) / expected[eligible]
     suppressed = np.zeros(votes.shape[0], dtype=bool)
     peaks: list[np.ndarray] = []

@@ -119,6 +119,15 @@ def measure(
         typer.Option("--cloud", help="Write the fused, cropped cloud (world frame) as binary PLY."),
     ] = None,
     assignments: SetOpt = None,
+    processes: Annotated[
+        int | None,
+        typer.Option(
+            "--processes",
+            min=1,
+            help="Views searched for balls at once, each in a process of its own (default: one per CPU; "
+            "1: one at a time). The figures are the same either way.",
+        ),
+    ] = None,
 ) -> None:
     """Register the views of a capture and measure the tree: height, width, thickness and more."""
     from canopy_core.cloud_io import write_ply
@@ -126,7 +135,7 @@ def measure(
 
     if cloud is not None and not cloud.parent.resolve().is_dir():
         raise CanopyError(f"cannot write the cloud: folder {cloud.parent} does not exist", field="--cloud")
-    result = run_measure(capture, overrides=settings_overrides(assignments))
+    result = run_measure(capture, overrides=settings_overrides(assignments), processes=processes)
     if cloud is not None:
         try:
             write_ply(cloud, result.cloud)

@@ -12,6 +12,7 @@ import json
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -45,6 +46,7 @@ from canopy_core.metrics import (
     measured_points,
 )
 from canopy_core.poles import find_poles, pole_mask
+from canopy_core.processes import on_each
 from canopy_core.refine import IcpRefinement
 from canopy_core.register import apply
 from canopy_core.segment import find_wires, tree_component, wire_mask
@@ -222,6 +224,7 @@ def measure(
     *,
     overrides: dict[str, Any] | None = None,
     progress: Progress | None = None,
+    processes: int | None = None,
 ) -> Measurement:
     """Measure the tree of one capture.
 
@@ -233,6 +236,10 @@ def measure(
         Nested settings overriding the defaults and the capture's own (see :class:`MeasureConfig`).
     progress
         Called with each stage's name and the overall progress in [0, 1].
+    processes
+        How many views are searched for balls at once, each in a process of its own
+        (:func:`canopy_core.processes.on_each`): None, one per CPU this process may use; 1, one at a time.
+        The result is the same either way.
 
     Raises
     ------
@@ -263,7 +270,7 @@ def measure(
     clouds = [filtered_cloud(view, config.filters) for view in capture.views]
 
     stages.start("balls")
-    candidates, grounds = ball_evidence(clouds, config)
+    candidates, grounds = ball_evidence(clouds, config, processes=processes)
 
     stages.start("register")
     aligned = align_views(
@@ -370,19 +377,23 @@ def filtered_cloud(view: View, filters: FilterConfig) -> ViewCloud:
 
 
 def ball_evidence(
-    clouds: list[ViewCloud], config: MeasureConfig
+    clouds: list[ViewCloud], config: MeasureConfig, *, processes: int | None = None
 ) -> tuple[list[ViewBallCandidates], list[GroundPlane | None]]:
     """What the balls are chosen from: each view's spheres and its ground plane (None where none is
-    found), as the measurement and ``canopy balls`` both need them."""
-    grounds = [
-        view_ground_plane(cloud.points_m, up_hint=CAMERA_UP, tolerance_m=config.ground.inlier_tolerance_m)
-        for cloud in clouds
-    ]
-    candidates = [
-        find_ball_candidates(cloud, config.balls, ground=ground)
-        for cloud, ground in zip(clouds, grounds, strict=True)
-    ]
-    return candidates, grounds
+    found), as the measurement and ``canopy balls`` both need them; the views searched at once, up to
+    ``processes`` of them (:func:`canopy_core.processes.on_each`: None, one per CPU)."""
+    evidence = on_each(partial(_view_ball_evidence, config=config), clouds, processes=processes)
+    return [candidates for candidates, _ in evidence], [ground for _, ground in evidence]
+
+
+def _view_ball_evidence(
+    cloud: ViewCloud, *, config: MeasureConfig
+) -> tuple[ViewBallCandidates, GroundPlane | None]:
+    """One view's spheres and ground plane (see :func:`ball_evidence`)."""
+    ground = view_ground_plane(
+        cloud.points_m, up_hint=CAMERA_UP, tolerance_m=config.ground.inlier_tolerance_m
+    )
+    return find_ball_candidates(cloud, config.balls, ground=ground), ground
 
 
 def _modes(

@@ -124,6 +124,13 @@ class Settings(BaseSettings):
         description="A worker answers Prometheus on this port (/metrics) when set: job durations by outcome "
         "and by pipeline stage. Unset: no port is opened.",
     )
+    worker_view_processes: int | None = Field(
+        None,
+        ge=1,
+        description="How many of a capture's views a measurement searches for balls at once, each in a "
+        "process of its own (unset: one per CPU the worker may use; 1: one at a time, for a machine whose "
+        "cores run other workers). The figures are the same either way.",
+    )
     worker_nice: int = Field(
         10,
         ge=0,

@@ -87,7 +87,12 @@ def run_measurement(connection: Connection, lifeline: Connection, spec: Measurem
     try:
         progress("load", 0.0)
         capture = read_capture(stored_manifest(spec.manifest), read, max_pixels=spec.max_pixels, stored=True)
-        result = measure(capture, overrides=spec.overrides, progress=progress)
+        result = measure(
+            capture,
+            overrides=spec.overrides,
+            progress=progress,
+            processes=spec.settings.worker_view_processes,
+        )
         cloud_sha256 = store.put(ply_bytes(result.cloud))
         figures = {name: store.put(png) for name, png in measurement_figures(result, capture).items()}
         document = json.loads(result.to_json())

@@ -26,7 +26,7 @@ def native_capture(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 @pytest.fixture(scope="module")
 def native_result(native_capture: Path) -> Measurement:
-    return measure(native_capture)
+    return measure(native_capture, processes=2)  # the views searched at once, as on any laptop
 
 
 def test_merged_height_width_thickness_match_ground_truth(
@@ -37,6 +37,17 @@ def test_merged_height_width_thickness_match_ground_truth(
     assert merged.height_m == pytest.approx(truth["height_m"], rel=0.02)
     assert merged.width_m == pytest.approx(truth["width_m"], rel=0.03)
     assert merged.thickness_m == pytest.approx(truth["thickness_m"], rel=0.03)
+
+
+def test_views_searched_one_at_a_time_measure_exactly_the_same(
+    native_capture: Path, native_result: Measurement
+) -> None:
+    one_at_a_time = measure(native_capture, processes=1).to_dict()
+    at_once = native_result.to_dict()
+    one_at_a_time.pop("timings_s"), at_once.pop("timings_s")
+    assert json.dumps(one_at_a_time, default=np.ndarray.tolist) == json.dumps(
+        at_once, default=np.ndarray.tolist
+    )
 
 
 def test_every_view_and_the_merged_views_are_measured(native_result: Measurement) -> None:

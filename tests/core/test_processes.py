@@ -1,0 +1,83 @@
+"""Per-view steps run at once in forked processes: the same results in the same order as one at a time,
+whatever happens to a process, and no process left behind."""
+
+from __future__ import annotations
+
+import os
+import signal
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from canopy_core.processes import on_each
+
+pytestmark = pytest.mark.skipif(sys.platform != "linux", reason="views run in forked processes on Linux only")
+
+
+def _square_and_where(item: int) -> tuple[int, int]:
+    return item * item, os.getpid()
+
+
+def test_results_come_back_in_order_and_other_processes_did_a_share() -> None:
+    results = on_each(_square_and_where, list(range(7)), processes=3)
+    assert [value for value, _ in results] == [i * i for i in range(7)]
+    workers = [pid for _, pid in results]
+    assert workers[0::3] == [os.getpid()] * 3  # this process does every third item from the first
+    assert os.getpid() not in workers[1::3] + workers[2::3]
+    assert len(set(workers)) == 3
+
+
+def test_one_process_runs_everything_here() -> None:
+    assert {pid for _, pid in on_each(_square_and_where, [1, 2, 3], processes=1)} == {os.getpid()}
+
+
+def _refuse_three(item: int) -> int:
+    if item == 3:
+        raise ValueError(f"item {item} is refused")
+    return item
+
+
+def test_an_error_in_another_process_is_raised_here_as_it_was_raised_there() -> None:
+    with pytest.raises(ValueError, match="item 3 is refused"):
+        on_each(_refuse_three, [0, 1, 2, 3], processes=2)
+
+
+def test_a_share_whose_process_is_killed_is_done_again_here() -> None:
+    parent = os.getpid()
+
+    def die_unless_parent(item: int) -> tuple[int, int]:
+        if os.getpid() != parent:
+            os.kill(os.getpid(), signal.SIGKILL)
+        return _square_and_where(item)
+
+    results = on_each(die_unless_parent, [1, 2, 3, 4], processes=2)
+    assert results == [(1, parent), (4, parent), (9, parent), (16, parent)]
+
+
+def test_a_result_that_cannot_be_pickled_is_worked_out_here() -> None:
+    parent = os.getpid()
+    results = on_each(lambda item: (lambda: item, os.getpid()), [5, 6], processes=2)
+    assert [make() for make, _ in results] == [5, 6]
+    assert [pid for _, pid in results] == [parent, parent]
+
+
+def test_a_process_still_running_when_this_one_fails_is_killed_and_reaped(tmp_path: Path) -> None:
+    parent = os.getpid()
+    pid_file = tmp_path / "child.pid"
+
+    def fail_here_linger_there(item: int) -> int:
+        if os.getpid() == parent:
+            while not pid_file.exists():  # the other share has started
+                time.sleep(0.01)
+            raise RuntimeError("this process's share failed")
+        pid_file.with_suffix(".tmp").write_text(str(os.getpid()))
+        pid_file.with_suffix(".tmp").replace(pid_file)
+        time.sleep(60)
+        return item
+
+    with pytest.raises(RuntimeError, match="this process's share failed"):
+        on_each(fail_here_linger_there, [0, 1], processes=2)
+    with pytest.raises(ProcessLookupError):  # killed and reaped: not even a zombie is left
+        os.kill(int(pid_file.read_text()), 0)
