@@ -7,6 +7,7 @@ imports done and the views in memory already; only its results travel back, pick
 
 from __future__ import annotations
 
+import ctypes
 import os
 import pickle
 import signal
@@ -67,6 +68,9 @@ def on_each(
     return results  # type: ignore[return-value]  # every slot filled above
 
 
+_PR_SET_PDEATHSIG = 1
+"""prctl(2)'s option: the signal this process gets when its parent thread dies."""
+
 _Child = tuple[int, int] | None
 """A forked process's id and the read end of its pipe; None when the fork failed."""
 
@@ -75,6 +79,7 @@ def _fork(function: Callable[[Item], Result], share: Sequence[Item]) -> _Child:
     """A process forked to work ``function`` on ``share`` and send back the pickled list of its results
     (or nothing, when any of it fails); None when no process could be forked."""
     read_end, write_end = os.pipe()
+    parent = os.getpid()
     try:
         pid = os.fork()
     except OSError:
@@ -88,6 +93,7 @@ def _fork(function: Callable[[Item], Result], share: Sequence[Item]) -> _Child:
     # parent's exit handlers and buffered output, which are the parent's to run and write.
     code = 1
     try:
+        _die_with(parent)
         os.close(read_end)
         payload = pickle.dumps([function(item) for item in share], protocol=pickle.HIGHEST_PROTOCOL)
         with os.fdopen(write_end, "wb") as pipe:
@@ -95,6 +101,16 @@ def _fork(function: Callable[[Item], Result], share: Sequence[Item]) -> _Child:
         code = 0
     finally:
         os._exit(code)
+
+
+def _die_with(parent: int) -> None:
+    """Have the kernel kill this process when its parent dies (Linux's ``PR_SET_PDEATHSIG``), and exit at
+    once if it is dead already: a measurement the service stops (its timeout, a lost lease) is SIGKILLed,
+    and the view it forked must not go on searching for nobody."""
+    libc = ctypes.CDLL(None, use_errno=True)
+    libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL)
+    if os.getppid() != parent:
+        os._exit(1)
 
 
 def _collect(child: _Child) -> list[Any] | None:

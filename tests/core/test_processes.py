@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import signal
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -81,3 +82,49 @@ def test_a_process_still_running_when_this_one_fails_is_killed_and_reaped(tmp_pa
         on_each(fail_here_linger_there, [0, 1], processes=2)
     with pytest.raises(ProcessLookupError):  # killed and reaped: not even a zombie is left
         os.kill(int(pid_file.read_text()), 0)
+
+
+_LINGERING_PARENT = """
+import os, sys, time
+from pathlib import Path
+from canopy_core.processes import on_each
+
+pid_file = Path(sys.argv[1])
+parent = os.getpid()
+
+def linger(item: int) -> int:
+    if os.getpid() != parent:
+        pid_file.with_suffix(".tmp").write_text(str(os.getpid()))
+        pid_file.with_suffix(".tmp").replace(pid_file)
+    time.sleep(60)
+    return item
+
+on_each(linger, [0, 1], processes=2)
+"""
+
+
+def test_a_process_whose_parent_is_killed_dies_with_it(tmp_path: Path) -> None:
+    pid_file = tmp_path / "child.pid"
+    parent = subprocess.Popen([sys.executable, "-c", _LINGERING_PARENT, str(pid_file)])
+    try:
+        deadline = time.monotonic() + 60
+        while not pid_file.exists():
+            assert time.monotonic() < deadline and parent.poll() is None, "the share's process never started"
+            time.sleep(0.05)
+    finally:
+        parent.kill()  # as the worker stops a measurement: SIGKILL, which no handler sees
+        parent.wait()
+    child = int(pid_file.read_text())
+    deadline = time.monotonic() + 10
+    while _running(child):
+        assert time.monotonic() < deadline, f"process {child} outlived its killed parent"
+        time.sleep(0.05)
+
+
+def _running(pid: int) -> bool:
+    """Whether ``pid`` is a live process (not gone, not a zombie waiting for a reaper)."""
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except FileNotFoundError:
+        return False
+    return state != "Z"
