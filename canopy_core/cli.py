@@ -199,7 +199,8 @@ def balls(
             raise CanopyError(f"cannot write to the preview folder {preview}", field="--preview")
     loaded = load_capture(capture)
     config = config_for(loaded.manifest, overrides)
-    views, grounds = ball_evidence([filtered_cloud(view, config.filters) for view in loaded.views], config)
+    clouds = [filtered_cloud(view, config.filters) for view in loaded.views]
+    views, grounds = ball_evidence(clouds, config, processes=None)
     report = ball_report(views, config.balls, grounds=grounds)
     if preview is not None:
         from PIL import Image

@@ -224,7 +224,7 @@ def measure(
     *,
     overrides: dict[str, Any] | None = None,
     progress: Progress | None = None,
-    processes: int | None = None,
+    processes: int | None = 1,
 ) -> Measurement:
     """Measure the tree of one capture.
 
@@ -237,9 +237,10 @@ def measure(
     progress
         Called with each stage's name and the overall progress in [0, 1].
     processes
-        How many views are searched for balls at once, each in a process of its own
-        (:func:`canopy_core.processes.on_each`): None, one per CPU this process may use; 1, one at a time.
-        The result is the same either way.
+        How many views are searched for balls at once, each in a process forked for it
+        (:func:`canopy_core.processes.on_each`): 1 (the default, safe in any program), one at a time; None,
+        one per CPU this process may use, as ``canopy measure`` and the service's worker do. The result is
+        the same either way.
 
     Raises
     ------
@@ -377,11 +378,11 @@ def filtered_cloud(view: View, filters: FilterConfig) -> ViewCloud:
 
 
 def ball_evidence(
-    clouds: list[ViewCloud], config: MeasureConfig, *, processes: int | None = None
+    clouds: list[ViewCloud], config: MeasureConfig, *, processes: int | None = 1
 ) -> tuple[list[ViewBallCandidates], list[GroundPlane | None]]:
     """What the balls are chosen from: each view's spheres and its ground plane (None where none is
-    found), as the measurement and ``canopy balls`` both need them; the views searched at once, up to
-    ``processes`` of them (:func:`canopy_core.processes.on_each`: None, one per CPU)."""
+    found), as the measurement and ``canopy balls`` both need them; up to ``processes`` views searched at
+    once (:func:`canopy_core.processes.on_each`; None: one per CPU)."""
     evidence = on_each(partial(_view_ball_evidence, config=config), clouds, processes=processes)
     return [candidates for candidates, _ in evidence], [ground for _, ground in evidence]
 

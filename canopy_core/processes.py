@@ -10,9 +10,12 @@ from __future__ import annotations
 import ctypes
 import os
 import pickle
+import select
 import signal
 import sys
+import time
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from typing import Any, TypeVar
 
 from threadpoolctl import threadpool_limits
@@ -31,68 +34,111 @@ def available_cpus() -> int:
 
 
 def on_each(
-    function: Callable[[Item], Result], items: Sequence[Item], *, processes: int | None = None
+    function: Callable[[Item], Result], items: Sequence[Item], *, processes: int | None = 1
 ) -> list[Result]:
     """``[function(item) for item in items]``, with up to ``processes`` of them running at once.
 
     This process does every ``processes``-th item from the first; each other share runs in a process forked
-    for it. ``processes`` None means one per CPU this process may use (:func:`available_cpus`); 1, or a
-    system that cannot fork safely (only Linux is trusted to), runs everything here, in order.
+    for it. ``processes`` 1 (the default, safe in any program) or a system that cannot fork safely (only
+    Linux is trusted to) runs everything here, in order; None means one per CPU this process may use
+    (:func:`available_cpus`). Either way the linear algebra runs on one thread (see below), so the
+    results are the same to the last bit whatever ``processes`` is.
 
     ``function`` must be deterministic and touch nothing but its item and what it returns: a share whose
-    process fails in any way (an exception, a signal, a result that cannot be pickled, a fork refused for
-    want of memory or processes) is done again here, so that what it raises is raised here, as it would
-    have been without processes, and a result is never lost to the way it was computed.
+    process fails in any way (an exception, a signal, a result that cannot be pickled, a fork or pipe
+    refused for want of memory, processes or files, no result after :data:`_STUCK_FACTOR` times this
+    process's own share and :data:`_STUCK_GRACE_S` more) is done again here, so that what it raises is
+    raised here, as it would have been without processes, and a result is never lost to the way it was
+    computed.
     """
-    count = len(items)
-    workers = min(count, available_cpus() if processes is None else max(processes, 1))
-    if workers <= 1 or sys.platform != "linux":
-        return [function(item) for item in items]
-    # One thread each for the linear algebra, here and in the forked processes (which inherit the limit):
-    # the processes use the cores, and a BLAS library's own threads would only compete with them (a view's
-    # ball search took about a tenth longer with two).
+    workers = min(len(items), available_cpus() if processes is None else max(processes, 1))
+    # One thread for the linear algebra, here and in the forked processes (which inherit the limit): the
+    # processes use the cores, and a BLAS library's own threads would only compete with them (a view's
+    # ball search took about a tenth longer with two); and the same limit whatever ``processes`` is, since
+    # a product split over threads may round differently.
     with threadpool_limits(limits=1, user_api="blas"):
-        children = {share: _fork(function, items[share::workers]) for share in range(1, workers)}
-        results: list[Result | None] = [None] * count
-        try:
-            for index in range(0, count, workers):
-                results[index] = function(items[index])
-            for share, child in children.items():
-                done: list[Result] | None = _collect(child)
-                if done is None:
-                    done = [function(item) for item in items[share::workers]]
-                results[share::workers] = done
-        finally:
-            for child in children.values():
-                _end(child)
+        if workers <= 1 or sys.platform != "linux":
+            return [function(item) for item in items]
+        return _at_once(function, items, workers)
+
+
+_STUCK_FACTOR = 10.0
+"""A forked share is taken for stuck, killed and done here, when it has sent nothing this many times as
+long after this process finished its own share as that share took (plus :data:`_STUCK_GRACE_S`): the
+views' shares are alike, and a deadlock in a process forked from a threaded one is rare but not
+impossible."""
+
+_STUCK_GRACE_S = 30.0
+"""Seconds added to the wait for a forked share, whatever this process's own share took."""
+
+_HELD_SIGNALS = {signal.SIGINT, signal.SIGTERM}
+"""Signals held back over a fork: Ctrl-C reaches the whole process group, and the new process must take
+it only inside the block that ends in ``os._exit``, never in its caller's code."""
+
+_PR_SET_PDEATHSIG = 1
+"""prctl(2)'s option: the signal this process gets when the thread that forked it ends."""
+
+_PRCTL = ctypes.CDLL(None, use_errno=True).prctl if sys.platform == "linux" else None
+"""The C library's prctl, looked up once, here, rather than in each forked process."""
+
+
+@dataclass
+class _Child:
+    """A forked process: its id, the read end of the pipe its results come through, whether reaped."""
+
+    pid: int
+    read_end: int
+    reaped: bool = False
+
+
+def _at_once(function: Callable[[Item], Result], items: Sequence[Item], workers: int) -> list[Result]:
+    """:func:`on_each` with ``workers`` shares, all but the first in forked processes."""
+    children: dict[int, _Child | None] = {}
+    results: list[Result | None] = [None] * len(items)
+    try:
+        for share in range(1, workers):
+            children[share] = _fork(function, items[share::workers])
+        started = time.monotonic()
+        for index in range(0, len(items), workers):
+            results[index] = function(items[index])
+        finished = time.monotonic()
+        deadline = finished + _STUCK_FACTOR * (finished - started) + _STUCK_GRACE_S
+        for share, child in children.items():
+            done: list[Result] | None = _collect(child, deadline)
+            if done is None:
+                done = [function(item) for item in items[share::workers]]
+            results[share::workers] = done
+    finally:
+        for child in children.values():
+            _end(child)
     return results  # type: ignore[return-value]  # every slot filled above
 
 
-_PR_SET_PDEATHSIG = 1
-"""prctl(2)'s option: the signal this process gets when its parent thread dies."""
-
-_Child = tuple[int, int] | None
-"""A forked process's id and the read end of its pipe; None when the fork failed."""
-
-
-def _fork(function: Callable[[Item], Result], share: Sequence[Item]) -> _Child:
+def _fork(function: Callable[[Item], Result], share: Sequence[Item]) -> _Child | None:
     """A process forked to work ``function`` on ``share`` and send back the pickled list of its results
-    (or nothing, when any of it fails); None when no process could be forked."""
-    read_end, write_end = os.pipe()
+    (or nothing, when any of it fails); None when no pipe or process could be made."""
+    try:
+        read_end, write_end = os.pipe()
+    except OSError:
+        return None
     parent = os.getpid()
+    held = signal.pthread_sigmask(signal.SIG_BLOCK, _HELD_SIGNALS)
     try:
         pid = os.fork()
     except OSError:
+        signal.pthread_sigmask(signal.SIG_SETMASK, held)
         os.close(read_end)
         os.close(write_end)
         return None
     if pid != 0:
+        signal.pthread_sigmask(signal.SIG_SETMASK, held)
         os.close(write_end)
-        return pid, read_end
+        return _Child(pid, read_end)
     # The child: it must never return into the caller's code, whatever happens; os._exit skips the
     # parent's exit handlers and buffered output, which are the parent's to run and write.
     code = 1
     try:
+        signal.pthread_sigmask(signal.SIG_SETMASK, held)  # a Ctrl-C held back is taken now, in here
         _die_with(parent)
         os.close(read_end)
         payload = pickle.dumps([function(item) for item in share], protocol=pickle.HIGHEST_PROTOCOL)
@@ -107,39 +153,48 @@ def _die_with(parent: int) -> None:
     """Have the kernel kill this process when its parent dies (Linux's ``PR_SET_PDEATHSIG``), and exit at
     once if it is dead already: a measurement the service stops (its timeout, a lost lease) is SIGKILLed,
     and the view it forked must not go on searching for nobody."""
-    libc = ctypes.CDLL(None, use_errno=True)
-    libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL)
+    if _PRCTL is not None:
+        _PRCTL(_PR_SET_PDEATHSIG, signal.SIGKILL)
     if os.getppid() != parent:
         os._exit(1)
 
 
-def _collect(child: _Child) -> list[Any] | None:
-    """The results ``child`` sent, once it has exited; None when it sent none whole or could not fork."""
+def _collect(child: _Child | None, deadline: float) -> list[Any] | None:
+    """The results ``child`` sent, once it has exited; None when it could not fork, sent none whole, or
+    sent nothing by ``deadline`` (a ``time.monotonic()`` time; :func:`_end` then kills it)."""
     if child is None:
         return None
-    pid, read_end = child
-    with os.fdopen(read_end, "rb", closefd=False) as pipe:
-        payload = pipe.read()
-    _, status = os.waitpid(pid, 0)
+    waiting = select.poll()
+    waiting.register(child.read_end, select.POLLIN)
+    chunks = []
+    while True:
+        remaining_ms = (deadline - time.monotonic()) * 1000.0
+        if remaining_ms <= 0 or not waiting.poll(remaining_ms):
+            return None  # stuck
+        chunk = os.read(child.read_end, 1 << 20)
+        if not chunk:
+            break
+        chunks.append(chunk)
+    _, status = os.waitpid(child.pid, 0)
+    child.reaped = True
     if not os.WIFEXITED(status) or os.WEXITSTATUS(status) != 0:
         return None
     try:
-        results: list[Any] = pickle.loads(payload)
+        results: list[Any] = pickle.loads(b"".join(chunks))
     except Exception:  # a result that pickles but does not unpickle: done again in this process
         return None
     return results
 
 
-def _end(child: _Child) -> None:
+def _end(child: _Child | None) -> None:
     """Close ``child``'s pipe and reap it, killing it first if it is still running (this process is
-    leaving early: an exception, or Ctrl-C)."""
+    leaving early: an exception, Ctrl-C, or the child was stuck)."""
     if child is None:
         return
-    pid, read_end = child
-    os.close(read_end)
-    try:
-        if os.waitpid(pid, os.WNOHANG) == (0, 0):
-            os.kill(pid, signal.SIGKILL)
-            os.waitpid(pid, 0)
-    except ChildProcessError:
-        pass  # already reaped by _collect
+    os.close(child.read_end)
+    if child.reaped:
+        return  # its id may belong to another process by now
+    if os.waitpid(child.pid, os.WNOHANG) == (0, 0):
+        os.kill(child.pid, signal.SIGKILL)
+        os.waitpid(child.pid, 0)
+    child.reaped = True

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 
+from canopy_core import processes
 from canopy_core.processes import on_each
 
 pytestmark = pytest.mark.skipif(sys.platform != "linux", reason="views run in forked processes on Linux only")
@@ -30,8 +31,34 @@ def test_results_come_back_in_order_and_other_processes_did_a_share() -> None:
     assert len(set(workers)) == 3
 
 
-def test_one_process_runs_everything_here() -> None:
+def test_one_process_the_default_runs_everything_here() -> None:
+    assert {pid for _, pid in on_each(_square_and_where, [1, 2, 3])} == {os.getpid()}
     assert {pid for _, pid in on_each(_square_and_where, [1, 2, 3], processes=1)} == {os.getpid()}
+
+
+def test_a_fork_refused_leaves_its_share_to_this_process(monkeypatch: pytest.MonkeyPatch) -> None:
+    def refuse() -> int:
+        raise BlockingIOError("Resource temporarily unavailable")  # as fork(2) says at a process limit
+
+    monkeypatch.setattr(os, "fork", refuse)
+    assert on_each(_square_and_where, [1, 2, 3], processes=2) == [(i * i, os.getpid()) for i in (1, 2, 3)]
+
+
+def test_a_share_stuck_past_its_deadline_is_killed_and_done_here(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    monkeypatch.setattr(processes, "_STUCK_GRACE_S", 1.0)
+    parent = os.getpid()
+    pid_file = tmp_path / "child.pid"
+
+    def stick_unless_parent(item: int) -> tuple[int, int]:
+        if os.getpid() != parent:
+            _write_pid(pid_file)
+            time.sleep(600)
+        return _square_and_where(item)
+
+    assert on_each(stick_unless_parent, [1, 2], processes=2) == [(1, parent), (4, parent)]
+    assert not _running(int(pid_file.read_text()))
 
 
 def _refuse_three(item: int) -> int:
@@ -70,11 +97,9 @@ def test_a_process_still_running_when_this_one_fails_is_killed_and_reaped(tmp_pa
 
     def fail_here_linger_there(item: int) -> int:
         if os.getpid() == parent:
-            while not pid_file.exists():  # the other share has started
-                time.sleep(0.01)
+            _wait_for(pid_file)  # the other share has started
             raise RuntimeError("this process's share failed")
-        pid_file.with_suffix(".tmp").write_text(str(os.getpid()))
-        pid_file.with_suffix(".tmp").replace(pid_file)
+        _write_pid(pid_file)
         time.sleep(60)
         return item
 
@@ -87,6 +112,7 @@ def test_a_process_still_running_when_this_one_fails_is_killed_and_reaped(tmp_pa
 _LINGERING_PARENT = """
 import os, sys, time
 from pathlib import Path
+from canopy_core import processes
 from canopy_core.processes import on_each
 
 pid_file = Path(sys.argv[1])
@@ -107,10 +133,7 @@ def test_a_process_whose_parent_is_killed_dies_with_it(tmp_path: Path) -> None:
     pid_file = tmp_path / "child.pid"
     parent = subprocess.Popen([sys.executable, "-c", _LINGERING_PARENT, str(pid_file)])
     try:
-        deadline = time.monotonic() + 60
-        while not pid_file.exists():
-            assert time.monotonic() < deadline and parent.poll() is None, "the share's process never started"
-            time.sleep(0.05)
+        _wait_for(pid_file)
     finally:
         parent.kill()  # as the worker stops a measurement: SIGKILL, which no handler sees
         parent.wait()
@@ -128,3 +151,17 @@ def _running(pid: int) -> bool:
     except FileNotFoundError:
         return False
     return state != "Z"
+
+
+def _write_pid(pid_file: Path) -> None:
+    """Write this process's id to ``pid_file`` whole (written beside it, then renamed)."""
+    pid_file.with_suffix(".tmp").write_text(str(os.getpid()))
+    pid_file.with_suffix(".tmp").replace(pid_file)
+
+
+def _wait_for(pid_file: Path) -> None:
+    """Wait until ``pid_file`` exists; fail after a minute rather than hang the suite."""
+    deadline = time.monotonic() + 60
+    while not pid_file.exists():
+        assert time.monotonic() < deadline, f"no process wrote {pid_file.name} within a minute"
+        time.sleep(0.02)
