@@ -27,7 +27,8 @@ Result = TypeVar("Result")
 
 
 def available_cpus() -> int:
-    """How many CPUs this process may run on (its affinity, which a container's or a job's limit narrows)."""
+    """How many CPUs this process may run on: its affinity, which a cpuset narrows (``docker --cpuset-cpus``)
+    and a CPU quota (``docker --cpus``) does not."""
     if hasattr(os, "sched_getaffinity"):
         return max(len(os.sched_getaffinity(0)), 1)
     return max(os.cpu_count() or 1, 1)
@@ -63,10 +64,10 @@ def on_each(
 
 
 _STUCK_FACTOR = 10.0
-"""A forked share is taken for stuck, killed and done here, when it has sent nothing this many times as
-long after this process finished its own share as that share took (plus :data:`_STUCK_GRACE_S`): the
-views' shares are alike, and a deadlock in a process forked from a threaded one is rare but not
-impossible."""
+"""A forked share is taken for stuck, killed and done here, when its results are not all in this many
+times as long after this process finished its own share as that share took (plus
+:data:`_STUCK_GRACE_S`): the views' shares are alike, and a deadlock in a process forked from a threaded
+one is rare but not impossible."""
 
 _STUCK_GRACE_S = 30.0
 """Seconds added to the wait for a forked share, whatever this process's own share took."""
