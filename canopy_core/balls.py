@@ -876,6 +876,8 @@ def _vote_peaks(votes: np.ndarray, weights: np.ndarray, scene: _Scene, radius_m:
     votes, weights, expected = votes[kept], weights[kept], expected[kept] * kept_share[kept]
     if votes.shape[0] == 0:
         return []
+    # Queries on one thread: the views are searched at once, in processes of their own (see
+    # canopy_core.processes), which use the cores.
     tree = cKDTree(votes)
     close = tree.query_ball_point(votes, r=_VOTE_RADIUS * radius_m, return_length=True)
     strength = close / expected
