@@ -97,8 +97,12 @@ def _at_once(function: Callable[[Item], Result], items: Sequence[Item], workers:
     children: dict[int, _Child | None] = {}
     results: list[Result | None] = [None] * len(items)
     try:
-        for share in range(1, workers):
-            children[share] = _fork(function, items[share::workers])
+        held = signal.pthread_sigmask(signal.SIG_BLOCK, _HELD_SIGNALS)
+        try:  # a Ctrl-C taken now would leave a child forked but not yet among ``children``
+            for share in range(1, workers):
+                children[share] = _fork(function, items[share::workers], mask=held)
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, held)
         started = time.monotonic()
         for index in range(0, len(items), workers):
             results[index] = function(items[index])
@@ -115,31 +119,32 @@ def _at_once(function: Callable[[Item], Result], items: Sequence[Item], workers:
     return results  # type: ignore[return-value]  # every slot filled above
 
 
-def _fork(function: Callable[[Item], Result], share: Sequence[Item]) -> _Child | None:
+def _fork(
+    function: Callable[[Item], Result], share: Sequence[Item], *, mask: set[int | signal.Signals]
+) -> _Child | None:
     """A process forked to work ``function`` on ``share`` and send back the pickled list of its results
-    (or nothing, when any of it fails); None when no pipe or process could be made."""
+    (or nothing, when any of it fails); None when no pipe or process could be made. Called with
+    :data:`_HELD_SIGNALS` blocked; the child sets its signal mask back to ``mask`` once it is in the block
+    it cannot leave but by ``os._exit``."""
     try:
         read_end, write_end = os.pipe()
     except OSError:
         return None
     parent = os.getpid()
-    held = signal.pthread_sigmask(signal.SIG_BLOCK, _HELD_SIGNALS)
     try:
         pid = os.fork()
     except OSError:
-        signal.pthread_sigmask(signal.SIG_SETMASK, held)
         os.close(read_end)
         os.close(write_end)
         return None
     if pid != 0:
-        signal.pthread_sigmask(signal.SIG_SETMASK, held)
         os.close(write_end)
         return _Child(pid, read_end)
     # The child: it must never return into the caller's code, whatever happens; os._exit skips the
     # parent's exit handlers and buffered output, which are the parent's to run and write.
     code = 1
     try:
-        signal.pthread_sigmask(signal.SIG_SETMASK, held)  # a Ctrl-C held back is taken now, in here
+        signal.pthread_sigmask(signal.SIG_SETMASK, mask)  # a Ctrl-C held back is taken now, in here
         _die_with(parent)
         os.close(read_end)
         payload = pickle.dumps([function(item) for item in share], protocol=pickle.HIGHEST_PROTOCOL)
