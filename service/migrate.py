@@ -28,6 +28,13 @@ def _config() -> Config:
 def upgrade(database: Database) -> None:
     """Apply every migration the database lacks (nothing when it is current).
 
+    The whole upgrade is one transaction, from reading the version the database is at to its last
+    migration: Alembic, finding a transaction open, commits none of its own. So processes started together
+    (an API and its workers, several `canopy db upgrade`) take turns on it, on SQLite's write lock
+    (``BEGIN IMMEDIATE``) or PostgreSQL's advisory lock, and the later ones find the database current;
+    with a transaction per migration, one could read the version between another's migrations and apply
+    them again. A migration that fails leaves the schema as it was.
+
     On SQLite, foreign keys are off while migrating: Alembic alters a table there by copying it and
     dropping the original, which with foreign keys on would cascade-delete every row that refers to it.
     They are checked afterwards instead.
@@ -37,14 +44,12 @@ def upgrade(database: Database) -> None:
         if database.is_sqlite:
             # Outside any transaction (the driver starts none on its own), where SQLite honours it.
             connection.connection.driver_connection.execute("PRAGMA foreign_keys=OFF")  # type: ignore[union-attr]
-        else:
-            # Processes started together (an API and its workers) migrate one after another; the others
-            # then find the database current. The lock belongs to the migration's transaction, so it is
-            # released at its commit or rollback, also when a migration fails.
-            connection.execute(text("SELECT pg_advisory_xact_lock(:key)"), {"key": _MIGRATION_LOCK})
-        config.attributes["connection"] = connection
-        command.upgrade(config, "head")
-        connection.commit()
+        with connection.begin():
+            if not database.is_sqlite:
+                # Released at the transaction's commit or rollback, also when a migration fails.
+                connection.execute(text("SELECT pg_advisory_xact_lock(:key)"), {"key": _MIGRATION_LOCK})
+            config.attributes["connection"] = connection
+            command.upgrade(config, "head")
         if database.is_sqlite:
             broken = connection.exec_driver_sql("PRAGMA foreign_key_check").fetchall()
             connection.rollback()

@@ -16,6 +16,7 @@ from alembic import command
 from alembic.autogenerate import compare_metadata
 from alembic.config import Config
 from alembic.migration import MigrationContext
+from sqlalchemy import event
 
 import migrations
 from service.database import Database
@@ -172,6 +173,25 @@ def test_migrations_build_exactly_the_models_schema(tmp_path: Path) -> None:
     assert differences == []
 
 
+@pytest.mark.parametrize("command", [["serve"], ["worker"], ["up"], ["db", "upgrade"]])
+def test_a_wrong_setting_stops_the_command_with_one_line_naming_it(
+    command: list[str], tmp_path: Path
+) -> None:
+    environment = {
+        **os.environ,
+        "CANOPY_DATA_DIR": str(tmp_path / "data"),
+        "CANOPY_WORKER_NICE": "99",
+        "CANOPY_JOB_LEASE_S": "half a minute",
+    }
+    done = subprocess.run([CANOPY, *command], env=environment, capture_output=True, text=True, timeout=60)
+    assert done.returncode == 2, done.stderr
+    assert done.stderr.splitlines() == [
+        "error: CANOPY_JOB_LEASE_S='half a minute': Input should be a valid number, unable to parse string "
+        "as a number; CANOPY_WORKER_NICE='99': Input should be less than or equal to 19"
+    ]
+    assert not (tmp_path / "data").exists()
+
+
 def test_worker_refuses_a_database_that_was_never_migrated(tmp_path: Path) -> None:
     done = subprocess.run(
         [CANOPY, "worker"],
@@ -292,6 +312,41 @@ def test_serve_and_worker_asked_to_stop_end_in_order(
     output, _ = process.communicate(timeout=STOP_WITHIN_S)
     assert "Traceback" not in output and "Fatal Python error" not in output, output
     assert process.returncode in (0, -ending), output  # serve ends by the signal itself, as uvicorn does
+
+
+def test_an_upgrade_another_process_completes_under_it_still_succeeds(tmp_path: Path) -> None:
+    """On SQLite, another process's whole `canopy db upgrade` lands each time this upgrade starts a
+    transaction after its first, the one that reads the version it starts from. The version read and the
+    migrations run must be one transaction, or this upgrade would run again the migrations the other had
+    applied (as three `canopy db upgrade` at once did, now and then, on a loaded machine). PostgreSQL
+    upgrades take turns on an advisory lock held for the whole upgrade."""
+    data = tmp_path / "data"
+    ours = Database(f"sqlite:///{data / 'canopy.db'}")
+    data.mkdir()
+    begun: list[str] = []
+    theirs: list[subprocess.CompletedProcess[str]] = []
+
+    def _theirs_lands(_connection: object, _cursor: object, statement: str, *_: object) -> None:
+        if statement != "BEGIN IMMEDIATE":
+            return
+        begun.append(statement)
+        if len(begun) > 1:
+            environment = {**os.environ, "CANOPY_DATA_DIR": str(data)}
+            theirs.append(
+                subprocess.run([CANOPY, "db", "upgrade"], env=environment, capture_output=True, text=True)
+            )
+
+    event.listen(ours.write_engine, "before_cursor_execute", _theirs_lands)
+    try:
+        upgrade(ours)
+        assert is_current(ours)
+    finally:
+        event.remove(ours.write_engine, "before_cursor_execute", _theirs_lands)
+        ours.dispose()
+    assert theirs, "no transaction after the first: nothing tried to land"
+    assert [(run.returncode, run.stdout.strip()) for run in theirs] == [
+        (0, "database at revision 0004")
+    ] * len(theirs), [run.stderr for run in theirs]
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
