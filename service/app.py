@@ -30,7 +30,7 @@ from service.keys import endpoints as keys
 from service.keys import session_endpoints as sessions
 from service.metrics import RequestTimer, ServiceMetrics
 from service.problems import Problem, component_schemas, install_problem_handlers
-from service.settings import Settings
+from service.settings import load_settings
 from service.validation import endpoints as validation
 
 __all__ = ["create_app"]
@@ -76,7 +76,7 @@ def create_app(context: Context | None = None) -> FastAPI:
         description="All lengths are metres. Every /v1 route and /readyz need `Authorization: Bearer <key>`. "
         "The whole contract (scopes, errors, ETags, idempotency, paging) is docs/api.md in the repository.",
     )
-    app.state.context = context = context or Context.from_settings(Settings())
+    app.state.context = context = context or Context.from_settings(load_settings())
     app.state.admission = Admission(context.settings)
     app.state.metrics = metrics = ServiceMetrics(context.database)
     install_problem_handlers(app)

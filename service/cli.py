@@ -45,9 +45,15 @@ app.add_typer(db_app, name="db")
 
 
 def _settings(data: Path | None = None) -> Settings:
-    from service.settings import Settings
+    """The ``CANOPY_*`` settings (``--data`` over the data folder's); a wrong one ends the command with one
+    line naming it (code 2)."""
+    from service.settings import SettingsError, load_settings
 
-    return Settings(data_dir=data) if data is not None else Settings()
+    try:
+        return load_settings(data_dir=data) if data is not None else load_settings()
+    except SettingsError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from None
 
 
 def _migrated_context(settings: Settings) -> Context:

@@ -4,13 +4,14 @@ from __future__ import annotations
 
 from functools import cached_property
 from pathlib import Path
+from typing import Any
 
-from pydantic import Field
+from pydantic import Field, ValidationError
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from canopy_core.images import DEFAULT_MAX_PIXELS
 
-__all__ = ["Settings"]
+__all__ = ["Settings", "SettingsError", "load_settings"]
 
 
 class Settings(BaseSettings):
@@ -161,3 +162,24 @@ class Settings(BaseSettings):
     def job_heartbeat_s(self) -> float:
         """How often a worker renews its lease: three chances before it runs out."""
         return self.job_lease_s / 3
+
+
+class SettingsError(ValueError):
+    """``CANOPY_*`` settings that do not hold; the message names each variable, its value and the fault."""
+
+
+def load_settings(**given: Any) -> Settings:
+    """The settings from the ``CANOPY_*`` environment, with ``given`` (a command's options) over it.
+
+    Raises :class:`SettingsError` with one line naming every wrong setting, for a command to print as it
+    is: a typo in a deployment's environment should read as the variable to fix, not as a traceback.
+    """
+    try:
+        return Settings(**given)
+    except ValidationError as exc:
+        problems = []
+        for error in exc.errors():
+            field = str(error["loc"][0]) if error["loc"] else ""
+            name = field if field in given else f"CANOPY_{field.upper()}"
+            problems.append(f"{name}={error['input']!r}: {error['msg']}")
+        raise SettingsError("; ".join(problems)) from None

@@ -12,7 +12,7 @@ from types import FrameType
 
 from service.context import Context
 from service.migrate import is_current
-from service.settings import Settings
+from service.settings import SettingsError, load_settings
 from worker.metrics import WorkerMetrics
 from worker.runner import Worker
 
@@ -32,7 +32,11 @@ def _stop_when_stdin_closes(worker: Worker) -> None:
 def main() -> None:
     """Run a worker on the database the ``CANOPY_*`` settings name."""
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
-    settings = Settings()
+    try:
+        settings = load_settings()
+    except SettingsError as exc:
+        sys.stderr.write(f"error: {exc}\n")
+        sys.exit(2)
     os.nice(settings.worker_nice)  # before the fork server starts: every measurement inherits it
     context = Context.from_settings(settings)
     if not is_current(context.database):
