@@ -379,8 +379,9 @@ def gc_command(
 
 @db_app.command("upgrade")
 def db_upgrade(data: DataOpt = None) -> None:
-    """Apply the migrations the database lacks (`serve`, `worker` and `up` do it too when they start); on
-    PostgreSQL, processes upgrading at once take turns."""
+    """Apply the migrations the database lacks (`serve`, `worker` and `up` do it too when they start), in one
+    transaction: processes upgrading at once take turns, and a failed migration leaves the schema as it
+    was."""
     require_extra("service", "db upgrade")
     from service.migrate import current_revision
 
