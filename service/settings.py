@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import difflib
+import logging
+import os
 from functools import cached_property
 from pathlib import Path
 from typing import Any
@@ -12,6 +15,12 @@ from pydantic_settings import BaseSettings, SettingsConfigDict
 from canopy_core.images import DEFAULT_MAX_PIXELS
 
 __all__ = ["Settings", "SettingsError", "load_settings"]
+
+logger = logging.getLogger(__name__)
+
+_CLOSE_NAME = 0.8
+"""A ``CANOPY_*`` variable that is no setting but whose name is at least this similar to one's (difflib's
+ratio) is taken for a misspelt setting and warned about."""
 
 
 class Settings(BaseSettings):
@@ -172,8 +181,11 @@ def load_settings(**given: Any) -> Settings:
     """The settings from the ``CANOPY_*`` environment, with ``given`` (a command's options) over it.
 
     Raises :class:`SettingsError` with one line naming every wrong setting, for a command to print as it
-    is: a typo in a deployment's environment should read as the variable to fix, not as a traceback.
+    is: a typo in a deployment's environment should read as the variable to fix, not as a traceback. A
+    ``CANOPY_*`` variable named like a setting but none is warned about: it would be ignored, and the
+    setting left at its default (``CANOPY_DATADIR`` would keep the records in ``./canopy-data``).
     """
+    _warn_of_misspelt_names()
     try:
         return Settings(**given)
     except ValidationError as exc:
@@ -183,3 +195,15 @@ def load_settings(**given: Any) -> Settings:
             name = field if field in given else f"CANOPY_{field.upper()}"
             problems.append(f"{name}={error['input']!r}: {error['msg']}")
         raise SettingsError("; ".join(problems)) from None
+
+
+def _warn_of_misspelt_names() -> None:
+    """Log a warning for each ``CANOPY_*`` environment variable that is no setting but close to one's name
+    (others, such as the upload client's ``CANOPY_KEY``, are another program's)."""
+    names = [f"CANOPY_{field.upper()}" for field in Settings.model_fields]
+    for variable in sorted(os.environ):
+        if not variable.startswith("CANOPY_") or variable in names:
+            continue
+        close = difflib.get_close_matches(variable, names, n=1, cutoff=_CLOSE_NAME)
+        if close:
+            logger.warning("%s is no Canopy setting and is ignored; did you mean %s?", variable, close[0])

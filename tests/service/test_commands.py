@@ -192,6 +192,22 @@ def test_a_wrong_setting_stops_the_command_with_one_line_naming_it(
     assert not (tmp_path / "data").exists()
 
 
+def test_a_variable_named_like_a_setting_but_none_is_warned_about(tmp_path: Path) -> None:
+    environment = {
+        **os.environ,
+        "CANOPY_DATA_DIR": str(tmp_path / "data"),
+        "CANOPY_JOB_LEASE": "60",  # CANOPY_JOB_LEASE_S meant
+        "CANOPY_KEY": "canopy_x",  # the upload client's, and like no setting
+    }
+    done = subprocess.run(
+        [CANOPY, "db", "upgrade"], env=environment, capture_output=True, text=True, timeout=60
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stderr.splitlines() == [
+        "CANOPY_JOB_LEASE is no Canopy setting and is ignored; did you mean CANOPY_JOB_LEASE_S?"
+    ]
+
+
 def test_worker_refuses_a_database_that_was_never_migrated(tmp_path: Path) -> None:
     done = subprocess.run(
         [CANOPY, "worker"],
