@@ -6,8 +6,9 @@ from alembic import context
 from sqlalchemy import Connection
 
 from service.database import Database
+from service.migrate import migration_connection
 from service.models import Base
-from service.settings import Settings
+from service.settings import load_settings
 
 
 def _migrate(connection: Connection) -> None:
@@ -26,7 +27,9 @@ connection = context.config.attributes.get("connection")
 if connection is not None:
     _migrate(connection)
 else:
-    database = Database(context.config.get_main_option("sqlalchemy.url") or Settings().sqlalchemy_url)
-    with database.write_engine.connect() as own_connection:
+    # Run by the `alembic` command (alembic.ini, for writing migrations): migrated as `canopy db upgrade`
+    # does, so that no table copy cascades its references away.
+    database = Database(context.config.get_main_option("sqlalchemy.url") or load_settings().sqlalchemy_url)
+    with migration_connection(database) as own_connection:
         _migrate(own_connection)
     database.dispose()

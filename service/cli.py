@@ -379,9 +379,9 @@ def gc_command(
 
 @db_app.command("upgrade")
 def db_upgrade(data: DataOpt = None) -> None:
-    """Apply the migrations the database lacks (`serve`, `worker` and `up` do it too when they start), in one
-    transaction: processes upgrading at once take turns, and a failed migration leaves the schema as it
-    was."""
+    """Apply the migrations the database lacks (`serve` and `up` do it too when they start; a worker refuses a
+    database that is not current), in one transaction: processes upgrading at once take turns, and a failed
+    migration leaves the schema as it was."""
     require_extra("service", "db upgrade")
     from service.migrate import current_revision
 

@@ -18,9 +18,10 @@ __all__ = ["Settings", "SettingsError", "load_settings"]
 
 logger = logging.getLogger(__name__)
 
-_CLOSE_NAME = 0.8
+_CLOSE_NAME = 0.85
 """A ``CANOPY_*`` variable that is no setting but whose name is at least this similar to one's (difflib's
-ratio) is taken for a misspelt setting and warned about."""
+ratio, without the prefix) is taken for a misspelt setting and warned about: ``DATADIR`` is 0.93 like
+``DATA_DIR`` and ``JOB_LEASE`` 0.90 like ``JOB_LEASE_S``, where ``S3_REGION`` is 0.67 like ``S3_PREFIX``."""
 
 
 class Settings(BaseSettings):
@@ -177,15 +178,17 @@ class SettingsError(ValueError):
     """``CANOPY_*`` settings that do not hold; the message names each variable, its value and the fault."""
 
 
-def load_settings(**given: Any) -> Settings:
+def load_settings(*, warn: bool = True, **given: Any) -> Settings:
     """The settings from the ``CANOPY_*`` environment, with ``given`` (a command's options) over it.
 
     Raises :class:`SettingsError` with one line naming every wrong setting, for a command to print as it
     is: a typo in a deployment's environment should read as the variable to fix, not as a traceback. A
     ``CANOPY_*`` variable named like a setting but none is warned about: it would be ignored, and the
-    setting left at its default (``CANOPY_DATADIR`` would keep the records in ``./canopy-data``).
+    setting left at its default (``CANOPY_DATADIR`` would keep the records in ``./canopy-data``); ``warn``
+    False leaves that to another process (``canopy up``'s worker, whose ``canopy up`` warned already).
     """
-    _warn_of_misspelt_names()
+    if warn:
+        _warn_of_misspelt_names()
     try:
         return Settings(**given)
     except ValidationError as exc:
@@ -199,11 +202,15 @@ def load_settings(**given: Any) -> Settings:
 
 def _warn_of_misspelt_names() -> None:
     """Log a warning for each ``CANOPY_*`` environment variable that is no setting but close to one's name
-    (others, such as the upload client's ``CANOPY_KEY``, are another program's)."""
-    names = [f"CANOPY_{field.upper()}" for field in Settings.model_fields]
+    (others, such as the upload client's ``CANOPY_KEY``, are another program's). The names are compared
+    without the prefix they all share, which would make any two look alike."""
+    fields = [field.upper() for field in Settings.model_fields]
     for variable in sorted(os.environ):
-        if not variable.startswith("CANOPY_") or variable in names:
+        name = variable.removeprefix("CANOPY_")
+        if name == variable or name in fields:
             continue
-        close = difflib.get_close_matches(variable, names, n=1, cutoff=_CLOSE_NAME)
+        close = difflib.get_close_matches(name, fields, n=1, cutoff=_CLOSE_NAME)
         if close:
-            logger.warning("%s is no Canopy setting and is ignored; did you mean %s?", variable, close[0])
+            logger.warning(
+                "%s is no Canopy setting and is ignored; did you mean CANOPY_%s?", variable, close[0]
+            )

@@ -33,7 +33,7 @@ def main() -> None:
     """Run a worker on the database the ``CANOPY_*`` settings name."""
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
     try:
-        settings = load_settings()
+        settings = load_settings(warn=UNTIL_STDIN_CLOSES not in sys.argv[1:])
     except SettingsError as exc:
         sys.stderr.write(f"error: {exc}\n")
         sys.exit(2)

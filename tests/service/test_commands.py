@@ -7,7 +7,9 @@ import signal
 import socket
 import sqlite3
 import subprocess
+import sys
 import time
+from collections.abc import Mapping
 from pathlib import Path
 
 import httpx
@@ -20,10 +22,12 @@ from sqlalchemy import event
 
 import migrations
 from service.database import Database
-from service.migrate import is_current, upgrade
+from service.migrate import is_current, migration_connection, upgrade
 from service.models import Base
 from tests.service.postgres import BACKENDS, database_url
 from tests.service.running import CANOPY, Service, free_port, start_up, stop_up
+
+REPOSITORY = Path(__file__).resolve().parents[2]
 
 
 def test_up_creates_the_database_and_prints_an_admin_key_once(tmp_path: Path) -> None:
@@ -178,7 +182,7 @@ def test_a_wrong_setting_stops_the_command_with_one_line_naming_it(
     command: list[str], tmp_path: Path
 ) -> None:
     environment = {
-        **os.environ,
+        **_without_settings(os.environ),
         "CANOPY_DATA_DIR": str(tmp_path / "data"),
         "CANOPY_WORKER_NICE": "99",
         "CANOPY_JOB_LEASE_S": "half a minute",
@@ -194,7 +198,7 @@ def test_a_wrong_setting_stops_the_command_with_one_line_naming_it(
 
 def test_a_variable_named_like_a_setting_but_none_is_warned_about(tmp_path: Path) -> None:
     environment = {
-        **os.environ,
+        **_without_settings(os.environ),
         "CANOPY_DATA_DIR": str(tmp_path / "data"),
         "CANOPY_JOB_LEASE": "60",  # CANOPY_JOB_LEASE_S meant
         "CANOPY_KEY": "canopy_x",  # the upload client's, and like no setting
@@ -265,9 +269,12 @@ def test_a_port_in_use_is_said_in_one_line_before_anything_is_created(tmp_path: 
     assert not (tmp_path / "data" / "canopy.db").exists()
 
 
-def test_upgrading_a_database_keeps_its_rows_and_never_reuses_an_id(tmp_path: Path) -> None:
-    """A database made by the first schema, with a capture deleted, upgraded to the newest: the rows stay,
-    the tables keep AUTOINCREMENT (SQLite alters a table by copying it) and the next id is a new one."""
+@pytest.mark.parametrize("upgraded_by", ["canopy", "alembic"])
+def test_upgrading_a_database_keeps_its_rows_and_never_reuses_an_id(tmp_path: Path, upgraded_by: str) -> None:
+    """A database made by the first schema, with a capture deleted, upgraded to the newest by the service
+    or by the `alembic` command (alembic.ini, for writing migrations): the rows stay, the tables keep
+    AUTOINCREMENT (SQLite alters a table by copying it) and the next id is a new one. Through the `alembic`
+    command, the table copies once cascaded every file, job and measurement of a capture away."""
     path = tmp_path / "old.db"
     config = Config()
     config.set_main_option("script_location", str(Path(migrations.__file__).parent))
@@ -284,8 +291,20 @@ def test_upgrading_a_database_keeps_its_rows_and_never_reuses_an_id(tmp_path: Pa
                 "INSERT INTO captures (tree_id, captured_at, manifest, created_at) VALUES (1, ?, '{}', ?)",
                 (f"2026-11-0{capture_id} 00:00:00", "2026-11-01 00:00:00"),
             )
+        old.execute(
+            "INSERT INTO capture_files (capture_id, path, sha256, size_bytes, created_at) "
+            "VALUES (1, 'a', 'x', 1, '2026-11-01 00:00:00')"
+        )
         old.execute("DELETE FROM captures WHERE id = 3")
-    upgrade(Database(f"sqlite:///{path}"))
+    if upgraded_by == "canopy":
+        upgrade(Database(f"sqlite:///{path}"))
+    else:
+        alembic = Path(sys.executable).with_name("alembic")
+        environment = {**_without_settings(os.environ), "CANOPY_DATABASE_URL": f"sqlite:///{path}"}
+        done = subprocess.run(
+            [str(alembic), "upgrade", "head"], cwd=REPOSITORY, env=environment, capture_output=True, text=True
+        )
+        assert done.returncode == 0, done.stderr
     with sqlite3.connect(path) as new:
         kept = new.execute("SELECT id, created_by_key_id FROM captures ORDER BY id").fetchall()
         new.execute(
@@ -293,7 +312,9 @@ def test_upgrading_a_database_keeps_its_rows_and_never_reuses_an_id(tmp_path: Pa
             ("2026-11-09 00:00:00", "2026-11-09 00:00:00"),
         )
         next_id = new.execute("SELECT max(id) FROM captures").fetchone()[0]
-    assert kept == [(1, None), (2, None)]  # owned by no key: open to every capture key, as before
+        files = new.execute("SELECT capture_id, path FROM capture_files").fetchall()
+    assert kept == [(1, None), (2, None)]
+    assert files == [(1, "a")]  # owned by no key: open to every capture key, as before
     assert next_id == 4
 
 
@@ -330,26 +351,31 @@ def test_serve_and_worker_asked_to_stop_end_in_order(
     assert process.returncode in (0, -ending), output  # serve ends by the signal itself, as uvicorn does
 
 
-def test_an_upgrade_another_process_completes_under_it_still_succeeds(tmp_path: Path) -> None:
-    """On SQLite, another process's whole `canopy db upgrade` lands each time this upgrade starts a
-    transaction after its first, the one that reads the version it starts from. The version read and the
-    migrations run must be one transaction, or this upgrade would run again the migrations the other had
-    applied (as three `canopy db upgrade` at once did, now and then, on a loaded machine). PostgreSQL
+def test_an_upgrade_lets_no_other_land_between_its_migrations(tmp_path: Path) -> None:
+    """On SQLite, another process's whole `canopy db upgrade` lands wherever this upgrade takes the write
+    lock again after first taking it (to read the version it starts from). The upgrade must hold it to
+    the end, or the other would apply the migrations this one goes on to apply again (as three `canopy db
+    upgrade` at once did, now and then, on a loaded machine: "duplicate column name"). PostgreSQL
     upgrades take turns on an advisory lock held for the whole upgrade."""
     data = tmp_path / "data"
     ours = Database(f"sqlite:///{data / 'canopy.db'}")
     data.mkdir()
-    begun: list[str] = []
+    locked: list[str] = []
     theirs: list[subprocess.CompletedProcess[str]] = []
 
     def _theirs_lands(_connection: object, _cursor: object, statement: str, *_: object) -> None:
         if statement != "BEGIN IMMEDIATE":
             return
-        begun.append(statement)
-        if len(begun) > 1:
-            environment = {**os.environ, "CANOPY_DATA_DIR": str(data)}
+        locked.append(statement)
+        if len(locked) > 1:
             theirs.append(
-                subprocess.run([CANOPY, "db", "upgrade"], env=environment, capture_output=True, text=True)
+                subprocess.run(
+                    [CANOPY, "db", "upgrade"],
+                    env={**_without_settings(os.environ), "CANOPY_DATA_DIR": str(data)},
+                    capture_output=True,
+                    text=True,
+                    timeout=60,
+                )
             )
 
     event.listen(ours.write_engine, "before_cursor_execute", _theirs_lands)
@@ -359,10 +385,33 @@ def test_an_upgrade_another_process_completes_under_it_still_succeeds(tmp_path: 
     finally:
         event.remove(ours.write_engine, "before_cursor_execute", _theirs_lands)
         ours.dispose()
-    assert theirs, "no transaction after the first: nothing tried to land"
-    assert [(run.returncode, run.stdout.strip()) for run in theirs] == [
-        (0, "database at revision 0004")
-    ] * len(theirs), [run.stderr for run in theirs]
+    assert locked == ["BEGIN IMMEDIATE"], [run.stderr for run in theirs]
+
+
+def test_a_migration_that_breaks_a_reference_is_rolled_back_whole(tmp_path: Path) -> None:
+    """The foreign keys, off while SQLite's tables are copied, are checked before the upgrade commits: a
+    broken reference leaves the schema as it was, and the connection goes back with its foreign keys on."""
+    database = Database(f"sqlite:///{tmp_path / 'canopy.db'}")
+    try:
+        with (
+            pytest.raises(RuntimeError, match="references are broken"),
+            migration_connection(database) as connection,
+        ):
+            connection.exec_driver_sql("CREATE TABLE parents (id INTEGER PRIMARY KEY)")
+            connection.exec_driver_sql("CREATE TABLE children (parent_id INTEGER REFERENCES parents (id))")
+            connection.exec_driver_sql("INSERT INTO children VALUES (7)")
+        with database.write_engine.connect() as connection:
+            tables = connection.exec_driver_sql("SELECT name FROM sqlite_master WHERE type = 'table'").all()
+            foreign_keys = connection.exec_driver_sql("PRAGMA foreign_keys").scalar()
+    finally:
+        database.dispose()
+    assert tables == []
+    assert foreign_keys == 1
+
+
+def _without_settings(environment: Mapping[str, str]) -> dict[str, str]:
+    """``environment`` without any ``CANOPY_*`` variable a developer may have set (a database URL)."""
+    return {name: value for name, value in environment.items() if not name.startswith("CANOPY_")}
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
