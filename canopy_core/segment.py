@@ -651,11 +651,20 @@ def _best_covered_line(line_key: np.ndarray, along_m: np.ndarray) -> tuple[int, 
     the point's position ``along_m`` it), the one that covers most length (stretches of
     :data:`_WIRE_BIN_M` holding a point), the lowest key among equals; and that length in metres."""
     stretch = np.floor(along_m / _WIRE_BIN_M).astype(np.int64)
-    stretches = int(np.ptp(stretch)) + 1
+    first = stretch.min()
+    stretches = int(stretch.max() - first) + 1
     # The stretches each line covers, as one sorted list of (line, stretch) keys: each line's in a run.
-    covered_lines = _distinct(line_key * stretches + stretch - stretch.min()) // stretches
-    starts = np.flatnonzero(np.diff(covered_lines, prepend=-1))
-    score = np.diff(starts, append=covered_lines.size)
+    # (Its runs found by hand: run by the wire search's turns thousands of times on a few hundred points,
+    # numpy.diff's prepend and append cost more than the rest.)
+    covered_lines = _distinct(line_key * stretches + (stretch - first)) // stretches
+    run_starts = np.empty(covered_lines.size, dtype=bool)
+    run_starts[0] = True
+    np.not_equal(covered_lines[1:], covered_lines[:-1], out=run_starts[1:])
+    starts = np.flatnonzero(run_starts)
+    ends = np.empty_like(starts)
+    ends[:-1] = starts[1:]
+    ends[-1] = covered_lines.size
+    score = ends - starts
     best = int(np.argmax(score))
     return int(covered_lines[starts[best]]), float(score[best] * _WIRE_BIN_M)
 
@@ -989,16 +998,25 @@ def _turned_to_cover(
         for tilt in turns:
             slope = float(np.tan(np.arctan(wire.slope) + tilt))
             turned = Wire(wire.origin_xy_m, direction, wire.height_m, slope)
-            covered, lines = 0, []
+            # A view's best line covers no stretch of the chord that none of its points near the turned
+            # wire holds: once what is covered and what the views left could cover is no more than the best
+            # so far, the direction is left, its lines unsought (they are most of the search's time).
+            nearby, bounds = [], []
             for points in near:
                 across, rise = turned.offsets_m(points)
-                close = np.hypot(across, rise) < _WIRE_VIEW_OFFSET_M
-                line = _best_parallel_line(points[close], turned, tolerance_m=tolerance_m, shortest_m=0.0)
+                close = points[np.hypot(across, rise) < _WIRE_VIEW_OFFSET_M]
+                along = (close[:, :2] - wire.origin_xy_m) @ direction
+                nearby.append((close, along))
+                bounds.append(int(np.count_nonzero(_stretches_holding(along, *chord))))
+            covered, lines = 0, []
+            for view, (close, along) in enumerate(nearby):
+                if covered + sum(bounds[view:]) <= best[0]:
+                    break
+                line = _best_parallel_line(close, turned, tolerance_m=tolerance_m, shortest_m=0.0)
                 if line is None:
                     continue
-                along = (points[close][line, :2] - wire.origin_xy_m) @ direction
-                covered += int(np.count_nonzero(_stretches_holding(along, *chord)))
-                lines.append(points[close][line])
+                covered += int(np.count_nonzero(_stretches_holding(along[line], *chord)))
+                lines.append(close[line])
             if covered > best[0]:
                 best = (covered, turned, lines)
     _, along_views, lines = best
