@@ -1000,7 +1000,8 @@ def _turned_to_cover(
             turned = Wire(wire.origin_xy_m, direction, wire.height_m, slope)
             # A view's best line covers no stretch of the chord that none of its points near the turned
             # wire holds: once what is covered and what the views left could cover is no more than the best
-            # so far, the direction is left, its lines unsought (they are most of the search's time).
+            # so far, this turn and tilt is given up, its remaining views' lines unsought (they are most of
+            # the search's time; a tie would not replace the best anyway).
             nearby, bounds = [], []
             for points in near:
                 across, rise = turned.offsets_m(points)
