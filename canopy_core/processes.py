@@ -8,6 +8,7 @@ imports done and the views in memory already; only its results travel back, pick
 from __future__ import annotations
 
 import ctypes
+import math
 import os
 import pickle
 import select
@@ -16,22 +17,79 @@ import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, TypeVar
 
 from threadpoolctl import threadpool_limits
 
-__all__ = ["available_cpus", "on_each"]
+__all__ = ["available_cpus", "cpu_quota", "on_each"]
 
 Item = TypeVar("Item")
 Result = TypeVar("Result")
 
 
 def available_cpus() -> int:
-    """How many CPUs this process may run on: its affinity, which a cpuset narrows (``docker --cpuset-cpus``)
-    and a CPU quota (``docker --cpus``) does not."""
-    if hasattr(os, "sched_getaffinity"):
-        return max(len(os.sched_getaffinity(0)), 1)
-    return max(os.cpu_count() or 1, 1)
+    """How many CPUs this process may use: those it may run on (its affinity, which a cpuset narrows:
+    ``docker --cpuset-cpus``), but no more than its CPU quota rounded up (:func:`cpu_quota`: ``docker
+    --cpus``, systemd's ``CPUQuota``), since processes beyond the quota only wait for their turn."""
+    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    quota = cpu_quota()
+    if quota is not None:
+        cpus = min(cpus, math.ceil(quota))
+    return max(cpus, 1)
+
+
+def cpu_quota(
+    *, root: Path = Path("/sys/fs/cgroup"), membership: Path = Path("/proc/self/cgroup")
+) -> float | None:
+    """The CPUs' worth of time this process's control groups let it use, the least over its group and the
+    groups above it (cgroup v2's ``cpu.max``, v1's ``cpu.cfs_quota_us`` over ``cpu.cfs_period_us``); None
+    when none sets one or none can be read (not Linux, no cgroup file system).
+
+    ``membership`` lists the process's groups as ``/proc/self/cgroup`` does, ``root`` is where their
+    hierarchies are mounted. A container often sees only its own group, at the mount's root, while its
+    membership names the host's path: the groups that do not exist under ``root`` are passed over.
+    """
+    try:
+        lines = membership.read_text().splitlines()
+    except OSError:
+        return None
+    quotas: list[float | None] = []
+    for line in lines:
+        _, controllers, path = line.split(":", 2)
+        if controllers == "":  # cgroup v2: one hierarchy, every controller
+            quotas += [_v2_quota(group / "cpu.max") for group in _groups(root, path)]
+        elif "cpu" in controllers.split(","):
+            hierarchy = root / controllers
+            quotas += [_v1_quota(group) for group in _groups(hierarchy, path)]
+    known = [quota for quota in quotas if quota is not None]
+    return min(known) if known else None
+
+
+def _groups(mount: Path, path: str) -> list[Path]:
+    """The existing folders of the group ``path`` and of each group above it, in the hierarchy mounted at
+    ``mount`` (the mount itself last)."""
+    group = mount / path.lstrip("/")
+    return [folder for folder in [group, *group.parents] if folder.is_relative_to(mount) and folder.is_dir()]
+
+
+def _v2_quota(cpu_max: Path) -> float | None:
+    """CPUs' worth of a cgroup v2 ``cpu.max`` ("quota period", or "max period": no limit)."""
+    try:
+        quota, period = cpu_max.read_text().split()
+        return None if quota == "max" else int(quota) / int(period)
+    except (OSError, ValueError):
+        return None
+
+
+def _v1_quota(group: Path) -> float | None:
+    """CPUs' worth of a cgroup v1 group's CFS quota (-1: no limit)."""
+    try:
+        quota = int((group / "cpu.cfs_quota_us").read_text())
+        period = int((group / "cpu.cfs_period_us").read_text())
+    except (OSError, ValueError):
+        return None
+    return None if quota <= 0 or period <= 0 else quota / period
 
 
 def on_each(

@@ -165,3 +165,39 @@ def _wait_for(pid_file: Path) -> None:
     while not pid_file.exists():
         assert time.monotonic() < deadline, f"no process wrote {pid_file.name} within a minute"
         time.sleep(0.02)
+
+
+def _group(folder: Path, **files: str) -> None:
+    folder.mkdir(parents=True, exist_ok=True)
+    for name, text in files.items():
+        (folder / name.replace("__", ".")).write_text(text)
+
+
+def test_a_cpu_quota_is_read_from_the_group_and_those_above_it_the_least_counting(tmp_path: Path) -> None:
+    root = tmp_path / "cgroup"
+    _group(root, cpu__max="max 100000\n")
+    _group(root / "machine" / "job", cpu__max="150000 100000\n")
+    _group(root / "machine", cpu__max="300000 100000\n")
+    membership = tmp_path / "membership"
+    membership.write_text("0::/machine/job\n")
+    assert processes.cpu_quota(root=root, membership=membership) == 1.5
+    membership.write_text("0::/\n")  # a container's own group at the mount's root: no limit there
+    assert processes.cpu_quota(root=root, membership=membership) is None
+
+
+def test_a_cgroup_v1_quota_counts_and_a_group_not_mounted_here_is_passed_over(tmp_path: Path) -> None:
+    root = tmp_path / "cgroup"
+    _group(root / "cpu,cpuacct", cpu__cfs_quota_us="50000\n", cpu__cfs_period_us="100000\n")
+    membership = tmp_path / "membership"
+    membership.write_text("4:memory:/docker/abc\n3:cpu,cpuacct:/docker/abc\n")  # the host's path
+    assert processes.cpu_quota(root=root, membership=membership) == 0.5
+    _group(root / "cpu,cpuacct", cpu__cfs_quota_us="-1\n")
+    assert processes.cpu_quota(root=root, membership=membership) is None
+    assert processes.cpu_quota(root=root, membership=tmp_path / "absent") is None
+
+
+def test_no_more_processes_than_the_cpu_quota_allows(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(processes, "cpu_quota", lambda: 0.5)
+    assert processes.available_cpus() == 1
+    results = on_each(_square_and_where, list(range(4)), processes=None)
+    assert [pid for _, pid in results] == [os.getpid()] * 4  # a quota of half a CPU: all done here
