@@ -50,18 +50,16 @@ def cpu_quota(
     hierarchies are mounted. A container often sees only its own group, at the mount's root, while its
     membership names the host's path: the groups that do not exist under ``root`` are passed over.
     """
-    try:
-        lines = membership.read_text().splitlines()
-    except OSError:
-        return None
     quotas: list[float | None] = []
-    for line in lines:
-        _, controllers, path = line.split(":", 2)
-        if controllers == "":  # cgroup v2: one hierarchy, every controller
-            quotas += [_v2_quota(group / "cpu.max") for group in _groups(root, path)]
-        elif "cpu" in controllers.split(","):
-            hierarchy = root / controllers
-            quotas += [_v1_quota(group) for group in _groups(hierarchy, path)]
+    try:
+        for line in membership.read_text().splitlines():
+            _, controllers, path = line.split(":", 2)
+            if controllers == "":  # cgroup v2: one hierarchy, every controller
+                quotas += [_v2_quota(group / "cpu.max") for group in _groups(root, path)]
+            elif "cpu" in controllers.split(","):
+                quotas += [_v1_quota(group) for group in _groups(root / controllers, path)]
+    except (OSError, ValueError):  # no such file, a folder not to be looked into, a line not of three fields
+        return None
     known = [quota for quota in quotas if quota is not None]
     return min(known) if known else None
 
