@@ -22,7 +22,6 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy import ndimage
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
@@ -205,6 +204,37 @@ def pole_mask(
     return mask
 
 
+def _spread(grid: np.ndarray, reach: int, *, axis: int) -> np.ndarray:
+    """``grid`` with every cell within ``reach`` cells along ``axis`` of a set one set too (a dilation)."""
+    padding = [(reach, reach) if each == axis else (0, 0) for each in range(grid.ndim)]
+    windows = np.lib.stride_tricks.sliding_window_view(np.pad(grid, padding), 2 * reach + 1, axis=axis)
+    return np.asarray(windows.any(axis=-1))
+
+
+def _slab_groups(grid: np.ndarray) -> tuple[int, np.ndarray]:
+    """How many groups of set cells ``grid`` (slab, row, column) holds, cells side by side or corner to
+    corner in one slab joined; and each cell's group (-1 where not set), numbered in the order of their
+    first cells in the grid."""
+    cells = np.flatnonzero(grid)
+    index = np.full(grid.shape, -1, dtype=np.int64)
+    index.ravel()[cells] = np.arange(cells.size)
+    slab, row, column = np.unravel_index(cells, grid.shape)
+    sources, targets = [], []
+    for step_row, step_column in ((0, 1), (1, -1), (1, 0), (1, 1)):  # each neighbour pair once
+        to_row, to_column = row + step_row, column + step_column
+        inside = (to_row < grid.shape[1]) & (to_column >= 0) & (to_column < grid.shape[2])
+        neighbour = index[slab[inside], to_row[inside], to_column[inside]]
+        sources.append(np.flatnonzero(inside)[neighbour >= 0])
+        targets.append(neighbour[neighbour >= 0])
+    source, target = np.concatenate(sources), np.concatenate(targets)
+    graph = coo_matrix((np.ones(source.size, dtype=np.int8), (source, target)), shape=(cells.size,) * 2)
+    # Components are numbered from the first unnumbered cell on, in the cells' order: the grid's.
+    count, labels = connected_components(graph, directed=False)
+    grouped = np.full(grid.shape, -1, dtype=np.int64)
+    grouped.ravel()[cells] = labels
+    return int(count), grouped
+
+
 def _straight_chains(
     points_m: np.ndarray, slab_of: np.ndarray, config: PoleConfig
 ) -> tuple[list[_Chain], np.ndarray]:
@@ -226,11 +256,9 @@ def _straight_chains(
     reach = max(1, int(np.ceil(config.isolation_m / config.cell_m / 2)))
     joined = grid
     for axis in (1, 2):  # a square of cells round each occupied one, in two cheap passes
-        joined = ndimage.maximum_filter1d(joined, size=2 * reach + 1, axis=axis)
-    within_slab = np.zeros((3, 3, 3), dtype=bool)
-    within_slab[1] = True
-    labels, count = ndimage.label(joined, structure=within_slab)
-    group = labels[slab, cell[:, 0], cell[:, 1]] - 1
+        joined = _spread(joined, reach, axis=axis)
+    count, labels = _slab_groups(joined)
+    group = labels[slab, cell[:, 0], cell[:, 1]]
     sizes = np.bincount(group, minlength=count)
     centres, order, starts, extent = _trimmed_groups(points_m[:, :2], group, sizes)
     kept = np.ceil(_COMPACT_SHARE * sizes).astype(np.int64)  # each group's points nearest its centre

@@ -7,7 +7,7 @@ import pytest
 
 from canopy_core.config import MetricsConfig, PoleConfig
 from canopy_core.metrics import canopy_metrics
-from canopy_core.poles import Pole, find_poles, pole_mask
+from canopy_core.poles import Pole, _slab_groups, _spread, find_poles, pole_mask
 from canopy_core.trunk_axis import TrunkAxis
 
 TRUNK_RADIUS_M = 0.06
@@ -376,3 +376,24 @@ def test_the_leader_over_the_trunk_is_not_joined_to_a_post_whose_top_the_crown_h
     poles = _poles(np.vstack([parts["trunk"], parts["crown"], leader, post, grass]))
 
     assert not _on(leader, poles).any()
+
+
+def test_a_slab_s_groups_join_cells_side_by_side_and_corner_to_corner_but_never_across_slabs() -> None:
+    grid = np.zeros((2, 4, 5), dtype=bool)
+    grid[0, 0, 0] = grid[0, 1, 1] = True  # corner to corner: one group
+    grid[0, 3, 3] = grid[0, 3, 4] = True  # side by side: another
+    grid[1, 0, 0] = True  # over the first group's first cell, in the next slab: a third
+    count, groups = _slab_groups(grid)
+    assert count == 3
+    assert groups[0, 0, 0] == groups[0, 1, 1] == 0  # numbered in the grid's order
+    assert groups[0, 3, 3] == groups[0, 3, 4] == 1
+    assert groups[1, 0, 0] == 2
+    assert (groups[~grid] == -1).all()
+
+
+def test_a_spread_reaches_as_far_as_asked_along_one_axis_only() -> None:
+    grid = np.zeros((1, 7, 7), dtype=bool)
+    grid[0, 3, 0] = True
+    spread = _spread(grid, 2, axis=1)
+    assert np.flatnonzero(spread[0, :, 0]).tolist() == [1, 2, 3, 4, 5]
+    assert not spread[0, :, 1:].any()
