@@ -7,6 +7,7 @@ from __future__ import annotations
 import itertools
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, replace
+from functools import partial
 
 import numpy as np
 
@@ -32,7 +33,15 @@ from canopy_core.ground import (
     sees_trunk_near,
     view_trunk_foot,
 )
-from canopy_core.refine import IcpRefinement, check_icp_agreement, refine_views, refinement_bounds
+from canopy_core.processes import on_each
+from canopy_core.refine import (
+    IcpRefinement,
+    IcpSurface,
+    check_icp_agreement,
+    icp_surface,
+    refine_views,
+    refinement_bounds,
+)
 from canopy_core.register import apply, register_by_balls
 
 __all__ = ["Alignment", "align_views", "balls_and_frame", "check_trunk_agreement"]
@@ -66,6 +75,7 @@ def align_views(
     config: MeasureConfig,
     *,
     refining: Callable[[], None] | None = None,
+    processes: int | None = 1,
 ) -> Alignment:
     """Register the views by their balls, fit the world frame, cut each view's region of interest and
     refine the poses by ICP.
@@ -101,9 +111,12 @@ def align_views(
         Per view, in capture order (the first is the reference): its name, its filtered points and its
         depth camera's focal length in pixels (the stray-point filter's pixel footprint).
     candidates, grounds
-        Per view, the spheres found and its ground plane (:func:`canopy_core.measure.ball_evidence`).
+        Per view, the spheres found and its ground plane (:func:`canopy_core.measure.view_evidence`).
     refining
         Called once as ICP starts on the first choice (the ``refine`` progress stage).
+    processes
+        How many views' regions of interest are cut at once, as :func:`canopy_core.processes.on_each`
+        takes it (1: one at a time; None: one per CPU). The result is the same either way.
 
     Raises
     ------
@@ -111,7 +124,9 @@ def align_views(
         As :func:`balls_and_frame`; RegistrationFailed as :func:`check_icp_agreement` when no other
         choice satisfies the surfaces.
     """
-    first = _aligned(view_names, clouds, focal_px, candidates, grounds, config, refining=refining)
+    first = _aligned(
+        view_names, clouds, focal_px, candidates, grounds, config, refining=refining, processes=processes
+    )
     names = list(view_names)
 
     def made_again(suspects: Sequence[int]) -> list[Alignment]:
@@ -119,7 +134,15 @@ def align_views(
         return [
             again
             for again in _choices_made_again(
-                first, suspects, view_names, clouds, focal_px, candidates, grounds, config
+                first,
+                suspects,
+                view_names,
+                clouds,
+                focal_px,
+                candidates,
+                grounds,
+                config,
+                processes=processes,
             )
             if _stands_made_again(again, clouds, grounds, config)
         ]
@@ -145,7 +168,16 @@ def align_views(
     # closed a triangle with the other's, two fragments at one turn about the shared ball may be the
     # balls (2088013: each view shows two balls whole, not the same two; the circles took clutter).
     try:
-        again = _aligned(view_names, clouds, focal_px, candidates, grounds, config, shared_ball_first=True)
+        again = _aligned(
+            view_names,
+            clouds,
+            focal_px,
+            candidates,
+            grounds,
+            config,
+            shared_ball_first=True,
+            processes=processes,
+        )
     except MeasurementError:
         raise failure from None
     if _stands_made_again(again, clouds, grounds, config):
@@ -187,10 +219,12 @@ def _choices_made_again(
     candidates: list[ViewBallCandidates],
     grounds: list[GroundPlane | None],
     config: MeasureConfig,
+    *,
+    processes: int | None = 1,
 ) -> Iterator[Alignment]:
     """The balls chosen again with each ball of the first choice in each of the ``suspects`` views (indices,
     in order) ruled out in turn (:meth:`ViewBallCandidates.ruling_out`), each carried through to ICP; a
-    ruling-out under which no choice holds yields nothing."""
+    ruling-out under which no choice holds yields nothing; ``processes`` as :func:`align_views`."""
     for index in suspects:
         for color in config.balls.colors:
             retry = list(candidates)
@@ -198,7 +232,7 @@ def _choices_made_again(
                 first.choices[index].chosen[color].fit.center_m, config.balls.radius_m
             )
             try:
-                again = _aligned(view_names, clouds, focal_px, retry, grounds, config)
+                again = _aligned(view_names, clouds, focal_px, retry, grounds, config, processes=processes)
             except MeasurementError:
                 continue
             yield again
@@ -482,9 +516,11 @@ def _aligned(
     *,
     refining: Callable[[], None] | None = None,
     shared_ball_first: bool = False,
+    processes: int | None = 1,
 ) -> Alignment:
     """One choice of balls carried through registration, the world frame, the regions of interest and ICP
-    (its reports not yet judged); ``shared_ball_first`` as :func:`select_balls`."""
+    (its reports not yet judged); ``shared_ball_first`` as :func:`select_balls`, ``processes`` as
+    :func:`align_views`."""
     choices, view_to_reference, ground = balls_and_frame(
         clouds, candidates, grounds, config, shared_ball_first=shared_ball_first
     )
@@ -501,24 +537,20 @@ def _aligned(
     measured_in = ground.round_trunk()
     to_trunk = measured_in.world_from_reference @ np.linalg.inv(ground.world_from_reference)
     axes_xy = [np.zeros(2), -to_trunk[:2, 3]] if measured_in.origin_at_trunk else [np.zeros(2)]
-    roi = [
-        _roi_cloud(cloud, pose, focal, config, axes_xy=axes_xy)
-        for cloud, pose, focal in zip(clouds, world_from_view, focal_px, strict=True)
-    ]
-    roi_points = [points for points, _, _ in roi]
+    refined = config.icp.enabled and len(clouds) > 1
+    roi = on_each(
+        partial(_view_region, config=config, axes_xy=axes_xy, refined=refined),
+        list(zip(clouds, world_from_view, focal_px, strict=True)),
+        processes=processes,
+    )
+    roi_points = [region.points_m for region in roi]
     if refining is not None:
         refining()
     icp: list[IcpRefinement | None] = [None] * len(clouds)
-    if config.icp.enabled and len(clouds) > 1:
+    if refined:
         corrections, reports = refine_views(
             list(view_names),
-            [
-                points[
-                    (points[:, 2] < config.icp.max_height_m)
-                    & (np.linalg.norm(points[:, :2], axis=1) < config.roi.radius_m)
-                ]
-                for points in roi_points
-            ],
+            [region.surface for region in roi if region.surface is not None],
             view_anchors_m=[apply(pose, a) for pose, a in zip(world_from_view, anchors, strict=True)],
             found_by_position=[_loose(choice) for choice in choices],
             config=config.icp,
@@ -535,8 +567,8 @@ def _aligned(
         ground=measured_in,
         world_from_view=[to_trunk @ pose for pose in world_from_view],
         roi_points_m=[points[inside] for points, inside in zip(roi_points, in_tree_roi, strict=True)],
-        roi_colors_rgb=[rgb[inside] for (_, rgb, _), inside in zip(roi, in_tree_roi, strict=True)],
-        stray_points_removed=[dropped for _, _, dropped in roi],
+        roi_colors_rgb=[region.colors_rgb[inside] for region, inside in zip(roi, in_tree_roi, strict=True)],
+        stray_points_removed=[region.stray_points_removed for region in roi],
         icp=icp,
     )
 
@@ -702,17 +734,32 @@ def _ground_frame(
     )
 
 
-def _roi_cloud(
-    cloud: ViewCloud,
-    world_from_view: np.ndarray,
-    focal_px: float,
-    config: MeasureConfig,
+@dataclass(frozen=True)
+class _ViewRegion:
+    """A view's points in the regions of interest (see :func:`_view_region`)."""
+
+    points_m: np.ndarray
+    """``(N, 3)`` in the world frame, without stray points."""
+    colors_rgb: np.ndarray
+    """``(N, 3)`` their colours."""
+    stray_points_removed: int
+    """How many stray points were dropped from the cylinder round the last axis (the tree's)."""
+    surface: IcpSurface | None
+    """Its band ICP works on, thinned (:func:`canopy_core.refine.icp_surface`); None when not refined."""
+
+
+def _view_region(
+    view: tuple[ViewCloud, np.ndarray, float],
     *,
+    config: MeasureConfig,
     axes_xy: Sequence[np.ndarray],
-) -> tuple[np.ndarray, np.ndarray, int]:
-    """A view's points inside the regions of interest (the vertical cylinders of ``roi.radius_m`` round
-    each of ``axes_xy``, below ``roi.max_height_m``), in the world frame, without stray points; and how
-    many stray points were dropped from the cylinder round the last axis (the tree's)."""
+    refined: bool,
+) -> _ViewRegion:
+    """A view's points (its cloud, its depth camera's pose in the world frame and focal length) inside the
+    regions of interest (the vertical cylinders of ``roi.radius_m`` round each of ``axes_xy``, below
+    ``roi.max_height_m``), in the world frame, without stray points; and, when ``refined``, the points ICP
+    works on (below ``icp.max_height_m`` in the cylinder round the first axis, the balls'), thinned."""
+    cloud, world_from_view, focal_px = view
     world = apply(world_from_view, cloud.points_m)
     inside = np.zeros(world.shape[0], dtype=bool)
     for axis_xy in axes_xy:
@@ -729,4 +776,11 @@ def _roi_cloud(
     kept = np.flatnonzero(inside)[dense]
     dropped = world[np.flatnonzero(inside)[~dense]]
     in_tree_roi = np.linalg.norm(dropped[:, :2] - axes_xy[-1], axis=1) < config.roi.radius_m
-    return world[kept], cloud.colors_rgb[kept], int(np.count_nonzero(in_tree_roi))
+    points = world[kept]
+    surface = None
+    if refined:
+        low = (points[:, 2] < config.icp.max_height_m) & (
+            np.linalg.norm(points[:, :2], axis=1) < config.roi.radius_m
+        )
+        surface = icp_surface(points[low], config.icp.voxel_m)
+    return _ViewRegion(points, cloud.colors_rgb[kept], int(np.count_nonzero(in_tree_roi)), surface)

@@ -185,7 +185,7 @@ def balls(
     """
     from canopy_core.ball_preview import ball_report, draw_ball_preview
     from canopy_core.capture import load_capture
-    from canopy_core.measure import ball_evidence, config_for, filtered_cloud
+    from canopy_core.measure import config_for, view_evidence
 
     overrides = settings_overrides(assignments)
     if preview is not None:
@@ -199,9 +199,10 @@ def balls(
             raise CanopyError(f"cannot write to the preview folder {preview}", field="--preview")
     loaded = load_capture(capture)
     config = config_for(loaded.manifest, overrides)
-    clouds = [filtered_cloud(view, config.filters) for view in loaded.views]
-    views, grounds = ball_evidence(clouds, config, processes=None)
-    report = ball_report(views, config.balls, grounds=grounds)
+    evidence = view_evidence(loaded.views, config, processes=None)
+    report = ball_report(
+        [view.balls for view in evidence], config.balls, grounds=[view.ground for view in evidence]
+    )
     if preview is not None:
         from PIL import Image
 

@@ -1,7 +1,7 @@
 """The measurement pipeline: a capture's views in, one registered tree cloud and its metrics out.
 
-Stages, each reported to the progress callback by name: ``load`` (capture read and checked), ``filter``
-(back-projection without flying pixels), ``balls`` (ball detection per view), ``register`` (ball
+Stages, each reported to the progress callback by name: ``load`` (capture read and checked), ``balls``
+(each view back-projected without flying pixels and searched for balls, views at once), ``register`` (ball
 registration into the first view's frame, and the world frame from the ground and the trunk), ``refine``
 (gated ICP), ``metrics`` (per view and merged: the paper's V1, V2 and V1+V2 modes) and ``done``.
 """
@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import json
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from functools import partial
 from pathlib import Path
@@ -60,17 +60,18 @@ __all__ = [
     "Measurement",
     "Progress",
     "ViewDiagnostics",
-    "ball_evidence",
+    "ViewEvidence",
     "config_for",
     "depth_footprint_m",
     "filtered_cloud",
     "measure",
+    "view_evidence",
 ]
 
 Progress = Callable[[str, float], None]
 """Called with a stage name and the overall progress in [0, 1] as each stage starts."""
 
-STAGES = ("load", "filter", "balls", "register", "refine", "metrics", "done")
+STAGES = ("load", "balls", "register", "refine", "metrics", "done")
 
 MERGED = "merged"
 _GROUND_SAMPLE = 60_000
@@ -237,10 +238,10 @@ def measure(
     progress
         Called with each stage's name and the overall progress in [0, 1].
     processes
-        How many views are searched for balls at once, each in a process forked for it
-        (:func:`canopy_core.processes.on_each`): 1 (the default, safe in any program), one at a time; None,
-        one per CPU this process may use, as ``canopy measure`` and the service's worker do. The result is
-        the same either way.
+        How many views are filtered and searched for balls at once, and their regions of interest cut,
+        each in a process forked for it (:func:`canopy_core.processes.on_each`): 1 (the default, safe in
+        any program), one at a time; None, one per CPU this process may use, as ``canopy measure`` and the
+        service's worker do. The result is the same either way.
 
     Raises
     ------
@@ -266,12 +267,11 @@ def measure(
             field="calibration_balls.colors",
         )
 
-    stages.start("filter")
-    depth_pixels = [int(np.count_nonzero(view.depth_raw)) for view in capture.views]
-    clouds = [filtered_cloud(view, config.filters) for view in capture.views]
-
     stages.start("balls")
-    candidates, grounds = ball_evidence(clouds, config, processes=processes)
+    depth_pixels = [int(np.count_nonzero(view.depth_raw)) for view in capture.views]
+    evidence = view_evidence(capture.views, config, processes=processes)
+    clouds = [view.cloud for view in evidence]
+    candidates, grounds = [view.balls for view in evidence], [view.ground for view in evidence]
 
     stages.start("register")
     aligned = align_views(
@@ -282,6 +282,7 @@ def measure(
         grounds,
         config,
         refining=lambda: stages.start("refine"),
+        processes=processes,
     )
     choices, ground, world_from_view = aligned.choices, aligned.ground, aligned.world_from_view
     roi_points, roi_colors = aligned.roi_points_m, aligned.roi_colors_rgb
@@ -377,24 +378,40 @@ def filtered_cloud(view: View, filters: FilterConfig) -> ViewCloud:
     return backproject(view, keep=keep)
 
 
-def ball_evidence(
-    clouds: list[ViewCloud], config: MeasureConfig, *, processes: int | None = 1
-) -> tuple[list[ViewBallCandidates], list[GroundPlane | None]]:
-    """What the balls are chosen from: each view's spheres and its ground plane (None where none is
-    found), as the measurement and ``canopy balls`` both need them; up to ``processes`` views searched at
-    once (:func:`canopy_core.processes.on_each`; None: one per CPU)."""
-    evidence = on_each(partial(_view_ball_evidence, config=config), clouds, processes=processes)
-    return [candidates for candidates, _ in evidence], [ground for _, ground in evidence]
+@dataclass(frozen=True)
+class ViewEvidence:
+    """What one view gives the choice of balls (see :func:`view_evidence`)."""
+
+    cloud: ViewCloud
+    """Its points without out-of-range and flying pixels, in its depth camera's frame."""
+    balls: ViewBallCandidates
+    """Every sphere of about the balls' radius found among them."""
+    ground: GroundPlane | None
+    """Its ground plane; None where none is found."""
 
 
-def _view_ball_evidence(
-    cloud: ViewCloud, *, config: MeasureConfig
-) -> tuple[ViewBallCandidates, GroundPlane | None]:
-    """One view's spheres and ground plane (see :func:`ball_evidence`)."""
+def view_evidence(
+    views: Sequence[View], config: MeasureConfig, *, processes: int | None = 1
+) -> list[ViewEvidence]:
+    """Each view filtered (:func:`filtered_cloud`) and searched for balls and its ground plane, as the
+    measurement and ``canopy balls`` both need it; up to ``processes`` views at once
+    (:func:`canopy_core.processes.on_each`; None: one per CPU), each filtered in its own process too.
+
+    Raises
+    ------
+    CaptureError
+        The first view without a depth reading in range.
+    """
+    return on_each(partial(_view_evidence, config=config), list(views), processes=processes)
+
+
+def _view_evidence(view: View, *, config: MeasureConfig) -> ViewEvidence:
+    """One view's evidence (see :func:`view_evidence`)."""
+    cloud = filtered_cloud(view, config.filters)
     ground = view_ground_plane(
         cloud.points_m, up_hint=CAMERA_UP, tolerance_m=config.ground.inlier_tolerance_m
     )
-    return find_ball_candidates(cloud, config.balls, ground=ground), ground
+    return ViewEvidence(cloud, find_ball_candidates(cloud, config.balls, ground=ground), ground)
 
 
 def _modes(

@@ -106,7 +106,7 @@ def on_each(
     refused for want of memory, processes or files, no result after :data:`_STUCK_FACTOR` times this
     process's own share and :data:`_STUCK_GRACE_S` more) is done again here, so that what it raises is
     raised here, as it would have been without processes, and a result is never lost to the way it was
-    computed.
+    computed. Where several items raise, the first one's exception is raised, as one at a time would.
     """
     workers = min(len(items), available_cpus() if processes is None else max(processes, 1))
     # One thread for the linear algebra, here and in the forked processes (which inherit the limit): the
@@ -159,19 +159,36 @@ def _at_once(function: Callable[[Item], Result], items: Sequence[Item], workers:
                 children[share] = _fork(function, items[share::workers], mask=held)
         finally:
             signal.pthread_sigmask(signal.SIG_SETMASK, held)
+        # The first item that raised, and what it raised: only the items before it still matter.
+        failed: tuple[int, Exception] | None = None
         started = time.monotonic()
         for index in range(0, len(items), workers):
-            results[index] = function(items[index])
+            try:
+                results[index] = function(items[index])
+            except Exception as error:
+                failed = (index, error)
+                break
         finished = time.monotonic()
         deadline = finished + _STUCK_FACTOR * (finished - started) + _STUCK_GRACE_S
         for share, child in children.items():
+            before = len(items) if failed is None else failed[0]
+            if share >= before:
+                continue  # all its items come after one that raised
             done: list[Result] | None = _collect(child, deadline)
-            if done is None:
-                done = [function(item) for item in items[share::workers]]
-            results[share::workers] = done
+            if done is not None:
+                results[share::workers] = done
+                continue
+            for index in range(share, before, workers):  # its process failed: done here, in order
+                try:
+                    results[index] = function(items[index])
+                except Exception as error:
+                    failed = (index, error)
+                    break
     finally:
         for child in children.values():
             _end(child)
+    if failed is not None:
+        raise failed[1]
     return results  # type: ignore[return-value]  # every slot filled above
 
 

@@ -36,9 +36,11 @@ from canopy_core.voxels import occupied_voxels
 __all__ = [
     "AlignmentQuality",
     "IcpRefinement",
+    "IcpSurface",
     "alignment_quality",
     "anchored_icp",
     "check_icp_agreement",
+    "icp_surface",
     "refine_views",
     "refinement_bounds",
     "yaw_deg",
@@ -46,6 +48,7 @@ __all__ = [
 
 _NORMAL_NEIGHBOURS = 20
 _MIN_POINTS = 200
+"""A view with fewer points in the band ICP works on is not refined (nor are the others)."""
 _SURFACE_SIGMA_M = 0.005
 """Depth noise of a Kinect v2 surface point at 3-4 m: the weight of a surface correspondence."""
 _SURFACE_EFFECTIVE_POINTS = 300
@@ -116,15 +119,32 @@ def _closer(after: AlignmentQuality, before: AlignmentQuality) -> bool:
     )
 
 
-def _thinned(points_m: np.ndarray, voxel_m: float) -> tuple[np.ndarray, np.ndarray]:
-    """Voxel-thinned points (each voxel's mean) and their unit normals (least-variance direction of the
-    ``_NORMAL_NEIGHBOURS`` nearest thinned points)."""
+@dataclass(frozen=True)
+class IcpSurface:
+    """A view's points as ICP matches them (see :func:`icp_surface`)."""
+
+    points_m: np.ndarray
+    """``(M, 3)`` the points thinned to one per voxel (each voxel's mean); none when too few were given."""
+    normals: np.ndarray
+    """``(M, 3)`` their unit normals."""
+    source_points: int
+    """How many points they were thinned from."""
+
+
+def icp_surface(points_m: np.ndarray, voxel_m: float) -> IcpSurface:
+    """A view's ``(N, 3)`` points thinned to one per voxel of edge ``voxel_m`` (each voxel's mean), with
+    unit normals (the least-variance direction of the ``_NORMAL_NEIGHBOURS`` nearest thinned points); left
+    empty when there are fewer than ``_MIN_POINTS`` points, too few to refine a view by. A step of its own,
+    so that each view's is worked out in its own process (see :func:`canopy_core.alignment.align_views`)."""
+    if points_m.shape[0] < _MIN_POINTS:
+        return IcpSurface(np.zeros((0, 3)), np.zeros((0, 3)), int(points_m.shape[0]))
     voxels = occupied_voxels(points_m, voxel_m)
     sums = np.column_stack([np.bincount(voxels.of_point, weights=points_m[:, axis]) for axis in range(3)])
     thinned = sums / voxels.counts[:, None]
     neighbours = min(_NORMAL_NEIGHBOURS, thinned.shape[0])
     _, index = cKDTree(thinned).query(thinned, k=neighbours, workers=-1)
-    return thinned, neighbourhood_normals(thinned, index.reshape(thinned.shape[0], neighbours))
+    normals = neighbourhood_normals(thinned, index.reshape(thinned.shape[0], neighbours))
+    return IcpSurface(thinned, normals, int(points_m.shape[0]))
 
 
 def anchored_icp(
@@ -180,7 +200,7 @@ def _skew(v: np.ndarray) -> np.ndarray:
 
 def refine_views(
     view_names: list[str],
-    points_m: list[np.ndarray],
+    surfaces: list[IcpSurface],
     *,
     view_anchors_m: list[np.ndarray],
     found_by_position: list[bool] | None = None,
@@ -192,9 +212,9 @@ def refine_views(
     ----------
     view_names
         The views, the first one the reference (never moved).
-    points_m
+    surfaces
         Each view's region-of-interest points in the common frame after the ball registration, its z axis
-        up (the ground's normal).
+        up (the ground's normal), thinned for ICP (:func:`icp_surface`).
     view_anchors_m
         Each view's own ball centres mapped into the common frame by its ball pose (matching rows). ICP
         holds them to the reference's, and a refinement may not slide them across the ground farther
@@ -217,16 +237,20 @@ def refine_views(
         Per view a 4x4 correction to apply on top of its ball pose (identity where refinement was rejected,
         and for the reference), and per non-reference view the report of what happened.
     """
-    corrections = [np.eye(4) for _ in points_m]
-    if len(points_m) < 2 or min(p.shape[0] for p in points_m) < _MIN_POINTS:
+    corrections = [np.eye(4) for _ in surfaces]
+    if len(surfaces) < 2 or min(surface.source_points for surface in surfaces) < _MIN_POINTS:
         return corrections, []
-    thinned = [_thinned(points, config.voxel_m) for points in points_m]
     reports = []
-    for index in range(1, len(points_m)):
-        points, _ = thinned[index]
-        others = [j for j in range(len(thinned)) if j != index]
-        others_tree = cKDTree(np.concatenate([apply(corrections[j], thinned[j][0]) for j in others]))
-        target_normals = np.concatenate([thinned[j][1] @ corrections[j][:3, :3].T for j in others])
+    for index in range(1, len(surfaces)):
+        points = surfaces[index].points_m
+        others = [surface for j, surface in enumerate(surfaces) if j != index]
+        moves = [correction for j, correction in enumerate(corrections) if j != index]
+        others_tree = cKDTree(
+            np.concatenate([apply(move, other.points_m) for move, other in zip(moves, others, strict=True)])
+        )
+        target_normals = np.concatenate(
+            [other.normals @ move[:3, :3].T for move, other in zip(moves, others, strict=True)]
+        )
         held = np.isfinite(view_anchors_m[index]).all(axis=1) & np.isfinite(view_anchors_m[0]).all(axis=1)
         anchors = view_anchors_m[index][held]
         correction = anchored_icp(

@@ -14,7 +14,7 @@ from canopy_core.alignment import align_views, check_trunk_agreement
 from canopy_core.ball_selection import balls_off_trunk, far_ball
 from canopy_core.capture import load_capture
 from canopy_core.errors import RegistrationFailed
-from canopy_core.measure import ball_evidence, config_for, filtered_cloud, measure
+from canopy_core.measure import config_for, measure, view_evidence
 from canopy_core.simulate import simulate_capture
 from tests.core.measured import assert_balls_true, assert_within_5_percent, ball_error_m, truth_of
 
@@ -235,8 +235,9 @@ def test_a_registration_that_leaves_the_views_round_different_trunks_fails_namin
     views/2, as a registration on look-alikes that ICP cannot see through does."""
     capture = load_capture(simulate_capture(tmp_path / "tree", seed=1, n_views=2))
     config = config_for(capture.manifest, None)
-    clouds = [filtered_cloud(view, config.filters) for view in capture.views]
-    candidates, grounds = ball_evidence(clouds, config)
+    evidence = view_evidence(capture.views, config)
+    clouds, grounds = [view.cloud for view in evidence], [view.ground for view in evidence]
+    candidates = [view.balls for view in evidence]
     alignment = align_views(
         [view.name for view in capture.views],
         clouds,

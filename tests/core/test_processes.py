@@ -72,6 +72,20 @@ def test_an_error_in_another_process_is_raised_here_as_it_was_raised_there() -> 
         on_each(_refuse_three, [0, 1, 2, 3], processes=2)
 
 
+def _refuse_one_and_two(item: int) -> int:
+    if item in (1, 2):
+        raise ValueError(f"item {item} is refused")
+    return item
+
+
+def test_of_several_items_that_raise_the_first_one_s_error_is_raised_as_one_at_a_time_would() -> None:
+    # This process meets item 2 first; item 1, in the other process, comes before it.
+    with pytest.raises(ValueError, match="item 1 is refused"):
+        on_each(_refuse_one_and_two, [0, 1, 2, 3], processes=2)
+    with pytest.raises(ValueError, match="item 1 is refused"):
+        on_each(_refuse_one_and_two, [0, 1, 2, 3, 4, 5], processes=3)
+
+
 def test_a_share_whose_process_is_killed_is_done_again_here() -> None:
     parent = os.getpid()
 

@@ -10,7 +10,7 @@ from scipy.spatial.transform import Rotation
 
 from canopy_core.config import IcpConfig
 from canopy_core.errors import RegistrationFailed
-from canopy_core.refine import anchored_icp, check_icp_agreement, refine_views
+from canopy_core.refine import IcpSurface, anchored_icp, check_icp_agreement, icp_surface, refine_views
 from canopy_core.register import apply, invert, pose_change
 
 BALLS = np.array([[0.5, 0.1, 0.05], [-0.3, 0.45, 0.05], [-0.25, -0.5, 0.05]])
@@ -93,6 +93,10 @@ def test_surfaces_outweigh_balls_that_disagree_slightly_in_tilt() -> None:
     assert tilt_error_deg < 0.05  # balls alone, 3 mm off, would leave about 0.2 deg
 
 
+def _surfaces(*views: np.ndarray) -> list[IcpSurface]:
+    return [icp_surface(points, IcpConfig().voxel_m) for points in views]
+
+
 def test_refinement_is_reported_and_the_reference_never_moves() -> None:
     rng = np.random.default_rng(2)
     first = _ground_and_trunk(rng)
@@ -100,7 +104,7 @@ def test_refinement_is_reported_and_the_reference_never_moves() -> None:
     second = apply(misregistration, _ground_and_trunk(rng))
     corrections, reports = refine_views(
         ["views/1", "views/2"],
-        [first, second],
+        _surfaces(first, second),
         view_anchors_m=[BALLS, apply(misregistration, BALLS)],
         config=IcpConfig(),
     )
@@ -123,7 +127,7 @@ def test_the_ground_sets_a_tilt_the_balls_got_wrong_by_more_than_their_noise() -
     second = apply(tilt, _ground_and_trunk(rng))
     corrections, (report,) = refine_views(
         ["views/1", "views/2"],
-        [first, second],
+        _surfaces(first, second),
         view_anchors_m=[BALLS, apply(tilt, BALLS)],
         config=IcpConfig(),
     )
@@ -147,11 +151,11 @@ def test_a_view_with_a_ball_found_by_position_may_be_corrected_further() -> None
     anchors = [BALLS, apply(misregistration, BALLS)]
 
     _, (strict,) = refine_views(
-        ["views/1", "views/2"], [first, second], view_anchors_m=anchors, config=IcpConfig()
+        ["views/1", "views/2"], _surfaces(first, second), view_anchors_m=anchors, config=IcpConfig()
     )
     corrections, (loose,) = refine_views(
         ["views/1", "views/2"],
-        [first, second],
+        _surfaces(first, second),
         view_anchors_m=anchors,
         found_by_position=[False, True],
         config=IcpConfig(),
@@ -173,7 +177,7 @@ def test_surfaces_that_contradict_the_balls_by_more_than_their_fits_allow_fail_t
     second = apply(tilted, _ground_and_trunk(rng))
     _, (report,) = refine_views(
         ["views/1", "views/2"],
-        [first, second],
+        _surfaces(first, second),
         view_anchors_m=[BALLS, BALLS],
         found_by_position=[False, True],
         config=IcpConfig(),
@@ -188,7 +192,7 @@ def test_surfaces_that_contradict_the_balls_by_more_than_their_fits_allow_fail_t
     slightly = apply(_small_motion(1.5, [0.01, 0.0, 0.005]), _ground_and_trunk(rng))
     _, reports = refine_views(
         ["views/1", "views/2"],
-        [first, slightly],
+        _surfaces(first, slightly),
         view_anchors_m=[BALLS, BALLS],
         found_by_position=[False, True],
         config=IcpConfig(),
@@ -209,7 +213,7 @@ def test_surfaces_that_turn_a_view_about_balls_nearly_in_a_line_fail_the_registr
     second = apply(about_the_line, _ground_and_trunk(rng))
     _, (report,) = refine_views(
         ["views/1", "views/2"],
-        [first, second],
+        _surfaces(first, second),
         view_anchors_m=[in_line, in_line],
         found_by_position=[False, True],
         config=IcpConfig(),

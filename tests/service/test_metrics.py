@@ -66,6 +66,6 @@ def test_the_api_and_a_worker_report_the_queue_requests_uploads_and_job_stages(
     assert job_polls and job_polls[0] >= 2
 
     assert worker[("canopy_job_duration_seconds_count", (("outcome", "ok"),))] == 1
-    for stage in ("load", "filter", "balls", "register", "refine", "metrics"):
+    for stage in ("load", "balls", "register", "refine", "metrics"):
         assert worker[("canopy_job_stage_duration_seconds_count", (("stage", stage),))] == 1, stage
     assert worker[("canopy_job_stage_duration_seconds_sum", (("stage", "balls"),))] > 0
