@@ -124,8 +124,9 @@ def measure(
         typer.Option(
             "--processes",
             min=1,
-            help="Views searched for balls at once, each in a process of its own (default: one per CPU; "
-            "1: one at a time). The figures are the same either way.",
+            help="Views filtered and searched for balls at once, and their regions of interest cut, each "
+            "in a process of its own (default: one per CPU; 1: one at a time). The figures are the same "
+            "either way.",
         ),
     ] = None,
 ) -> None:

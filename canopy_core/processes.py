@@ -121,7 +121,7 @@ def on_each(
 
 _STUCK_FACTOR = 10.0
 """A forked share is taken for stuck, killed and done here, when its results are not all in this many
-times as long after this process finished its own share as that share took (plus
+times as long after this process finished its own share (or met an item that raised) as that took (plus
 :data:`_STUCK_GRACE_S`): the views' shares are alike, and a deadlock in a process forked from a threaded
 one is rare but not impossible."""
 

@@ -237,6 +237,11 @@ def refine_views(
         Per view a 4x4 correction to apply on top of its ball pose (identity where refinement was rejected,
         and for the reference), and per non-reference view the report of what happened.
     """
+    if not len(view_names) == len(surfaces) == len(view_anchors_m):
+        raise ValueError(
+            f"{len(view_names)} views, {len(surfaces)} surfaces and {len(view_anchors_m)} sets of anchors "
+            "given: one of each per view"
+        )
     corrections = [np.eye(4) for _ in surfaces]
     if len(surfaces) < 2 or min(surface.source_points for surface in surfaces) < _MIN_POINTS:
         return corrections, []

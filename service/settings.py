@@ -138,9 +138,10 @@ class Settings(BaseSettings):
     worker_view_processes: int | None = Field(
         None,
         ge=1,
-        description="How many of a capture's views a measurement searches for balls at once, each in a "
-        "process of its own (unset: one per CPU the worker may use; 1: one at a time, for a machine whose "
-        "cores run other workers). The figures are the same either way.",
+        description="How many of a capture's views a measurement filters and searches for balls at once, and "
+        "cuts the regions of interest of, each in a process of its own (unset: one per CPU the worker may "
+        "use; 1: one at a time, for a machine whose cores run other workers). The figures are the same "
+        "either way.",
     )
     worker_nice: int = Field(
         10,

@@ -26,7 +26,7 @@ class WorkerMetrics:
         )
         self.stage_seconds = Histogram(
             "canopy_job_stage_duration_seconds",
-            "Time a measured job spent in each pipeline stage (load, filter, balls, register, ...)",
+            "Time a measured job spent in each pipeline stage (load, balls, register, refine, metrics)",
             ["stage"],
             buckets=_JOB_BUCKETS_S,
             registry=self.registry,

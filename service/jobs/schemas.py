@@ -48,7 +48,9 @@ class JobOut(BaseModel):
     tree: str
     tree_id: int
     state: JobState
-    stage: str | None = Field(description="Pipeline stage while running: load, filter, balls, ...")
+    stage: str | None = Field(
+        description="Pipeline stage while running: load, balls, register, refine, metrics, done"
+    )
     progress: float = Field(ge=0.0, le=1.0)
     attempts: int
     created_at: datetime

@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy import ndimage
 
 from canopy_core.config import MetricsConfig, PoleConfig
 from canopy_core.metrics import canopy_metrics
-from canopy_core.poles import Pole, _slab_groups, _spread, find_poles, pole_mask
+from canopy_core.poles import Pole, _slab_groups, find_poles, pole_mask
 from canopy_core.trunk_axis import TrunkAxis
 
 TRUNK_RADIUS_M = 0.06
@@ -378,22 +379,32 @@ def test_the_leader_over_the_trunk_is_not_joined_to_a_post_whose_top_the_crown_h
     assert not _on(leader, poles).any()
 
 
-def test_a_slab_s_groups_join_cells_side_by_side_and_corner_to_corner_but_never_across_slabs() -> None:
-    grid = np.zeros((2, 4, 5), dtype=bool)
-    grid[0, 0, 0] = grid[0, 1, 1] = True  # corner to corner: one group
-    grid[0, 3, 3] = grid[0, 3, 4] = True  # side by side: another
-    grid[1, 0, 0] = True  # over the first group's first cell, in the next slab: a third
-    count, groups = _slab_groups(grid)
+def test_a_slab_s_groups_join_cells_within_reach_but_never_across_slabs() -> None:
+    slab = np.array([0, 0, 0, 1, 0])
+    cell = np.array([[0, 0], [2, 2], [6, 6], [0, 0], [6, 7]])
+    count, group = _slab_groups(slab, cell, reach=1)
+    # (0, 0) and (2, 2): their squares of one cell touch corner to corner; (6, 6) and (6, 7) share theirs;
+    # the cell over (0, 0) in the next slab stands alone. Numbered slab by slab, row by row.
     assert count == 3
-    assert groups[0, 0, 0] == groups[0, 1, 1] == 0  # numbered in the grid's order
-    assert groups[0, 3, 3] == groups[0, 3, 4] == 1
-    assert groups[1, 0, 0] == 2
-    assert (groups[~grid] == -1).all()
+    assert group.tolist() == [0, 0, 1, 2, 1]
 
 
-def test_a_spread_reaches_as_far_as_asked_along_one_axis_only() -> None:
-    grid = np.zeros((1, 7, 7), dtype=bool)
-    grid[0, 3, 0] = True
-    spread = _spread(grid, 2, axis=1)
-    assert np.flatnonzero(spread[0, :, 0]).tolist() == [1, 2, 3, 4, 5]
-    assert not spread[0, :, 1:].any()
+def test_a_slab_s_groups_are_those_scipy_s_labelling_gives_numbered_alike() -> None:
+    rng = np.random.default_rng(0)
+    for _ in range(200):
+        size = rng.integers(1, 30, 3)
+        count = int(rng.integers(1, 300))
+        slab = rng.integers(0, size[0], count)
+        cell = np.column_stack([rng.integers(0, size[1], count), rng.integers(0, size[2], count)])
+        slab, cell = slab - slab.min(), cell - cell.min(axis=0)
+        reach = int(rng.integers(1, 4))
+        grid = np.zeros((slab.max() + 1, *(cell.max(axis=0) + 1)), dtype=bool)
+        grid[slab, cell[:, 0], cell[:, 1]] = True
+        for axis in (1, 2):
+            grid = ndimage.maximum_filter1d(grid, size=2 * reach + 1, axis=axis)
+        within_slab = np.zeros((3, 3, 3), dtype=bool)
+        within_slab[1] = True
+        labels, expected = ndimage.label(grid, structure=within_slab)
+        found, group = _slab_groups(slab, cell, reach)
+        assert found == expected
+        assert np.array_equal(group, labels[slab, cell[:, 0], cell[:, 1]] - 1)

@@ -86,6 +86,26 @@ def test_of_several_items_that_raise_the_first_one_s_error_is_raised_as_one_at_a
         on_each(_refuse_one_and_two, [0, 1, 2, 3, 4, 5], processes=3)
 
 
+def test_a_share_all_after_an_item_that_raised_is_not_waited_for(tmp_path: Path) -> None:
+    parent = os.getpid()
+    pid_file = tmp_path / "child.pid"
+
+    def refuse_one_linger_on_two(item: int) -> int:
+        if item == 1:
+            raise ValueError("item 1 is refused")  # in its process, then again here
+        if item == 2 and os.getpid() != parent:
+            _write_pid(pid_file)
+            time.sleep(60)
+        _wait_for(pid_file)  # item 0, here: the process of item 2 has started
+        return item
+
+    started = time.monotonic()
+    with pytest.raises(ValueError, match="item 1 is refused"):
+        on_each(refuse_one_linger_on_two, [0, 1, 2], processes=3)
+    assert time.monotonic() - started < 30.0  # not the minute item 2 takes: its error could not come first
+    assert not _running(int(pid_file.read_text()))
+
+
 def test_a_share_whose_process_is_killed_is_done_again_here() -> None:
     parent = os.getpid()
 

@@ -227,3 +227,31 @@ def test_surfaces_that_turn_a_view_about_balls_nearly_in_a_line_fail_the_registr
     assert failure.value.view == "views/2"
     assert failure.value.field == "icp.max_disagreement_deg"
     assert f"turned by {report.rotation_change_deg:.1f} degrees" in failure.value.message
+
+
+def test_a_view_with_too_few_points_to_refine_by_leaves_every_view_as_the_balls_put_it() -> None:
+    rng = np.random.default_rng(7)
+    first = _ground_and_trunk(rng)
+    few = apply(_small_motion(0.3, [0.0, 0.005, 0.004]), first[:199])  # one fewer than refine needs
+    corrections, reports = refine_views(
+        ["views/1", "views/2"], _surfaces(first, few), view_anchors_m=[BALLS, BALLS], config=IcpConfig()
+    )
+    assert reports == [] and all(np.array_equal(c, np.eye(4)) for c in corrections)
+    _, reports = refine_views(
+        ["views/1", "views/2"],
+        _surfaces(first, first[:200]),
+        view_anchors_m=[BALLS, BALLS],
+        config=IcpConfig(),
+    )
+    assert len(reports) == 1
+
+
+def test_a_surface_missing_for_a_view_is_refused_rather_than_matched_to_another() -> None:
+    rng = np.random.default_rng(8)
+    with pytest.raises(ValueError, match="one of each per view"):
+        refine_views(
+            ["views/1", "views/2", "views/3"],
+            _surfaces(_ground_and_trunk(rng), _ground_and_trunk(rng)),
+            view_anchors_m=[BALLS, BALLS, BALLS],
+            config=IcpConfig(),
+        )
