@@ -204,6 +204,27 @@ def test_version_prints_the_installed_version() -> None:
     assert done.stdout.strip() == f"canopy {version('canopy')}"
 
 
+_PARTS_LOADED = """
+import sys
+from canopy_core.cli import command_line
+command_line(sys.argv[1:])
+print(sorted(name for name in sys.modules if name.startswith("service")))
+"""
+
+
+def test_a_core_command_starts_without_looking_up_the_other_parts_commands() -> None:
+    def parts_loaded(*arguments: str) -> str:
+        done = subprocess.run(
+            [sys.executable, "-c", _PARTS_LOADED, *arguments], capture_output=True, text=True, timeout=60
+        )
+        assert done.returncode == 0, done.stderr
+        return done.stdout.strip()
+
+    assert parts_loaded("measure", "somewhere") == "[]"
+    assert "service.cli" in parts_loaded("serve")
+    assert "service.client.cli" in parts_loaded("--help")
+
+
 @pytest.mark.parametrize(
     ("command", "argument"), [("measure", "CAPTURE"), ("upload", "ROOT"), ("simulate", "OUT")]
 )
