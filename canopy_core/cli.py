@@ -329,7 +329,7 @@ def command_line(arguments: Sequence[str] | None = None) -> typer.Typer:
     metadata and importing the parts' command modules)."""
     arguments = sys.argv[1:] if arguments is None else arguments
     core = {
-        command.name or getattr(command.callback, "__name__", "").replace("_", "-")
+        command.name or getattr(command.callback, "__name__", "").lower().replace("_", "-")
         for command in app.registered_commands
     }
     if arguments and arguments[0] in core:

@@ -215,8 +215,9 @@ def _slab_groups(slab: np.ndarray, cell: np.ndarray, reach: int) -> tuple[int, n
     The slabs are stacked into one image with ``reach`` empty rows between them, so that neither the
     square round a cell nor a group's 8-neighbours reach into the next slab; OpenCV dilates and labels it.
     """
+    slab, cell = np.asarray(slab, dtype=np.int64), np.asarray(cell, dtype=np.int64)
     slabs, rows, columns = int(slab.max()) + 1, int(cell[:, 0].max()) + 1, int(cell[:, 1].max()) + 1
-    pitch = rows + reach
+    pitch = rows + max(reach, 1)  # at least one empty row: groups never join across it
     image = np.zeros((slabs * pitch, columns), dtype=np.uint8)
     image[slab * pitch + cell[:, 0], cell[:, 1]] = 1
     joined = cv2.dilate(image, np.ones((2 * reach + 1, 2 * reach + 1), dtype=np.uint8))
