@@ -13,8 +13,9 @@ With ``--against REV`` the same capture is also measured by the code of git revi
 in a temporary worktree, run with this environment's packages), the two alternating run by run, and the
 ratio of the medians is printed: the honest way to compare two versions, since a shared or throttled
 machine's speed drifts by tens of per cent within an hour and by more from day to day. Then each version's
+start (a process importing what the command imports before it measures, alternating), and each version's
 in-process time per stage (the median of ``--repeat`` measurements, each in a process of its own after one
-to warm up, the versions alternating) is printed side by side: where the two differ.
+to warm up, the versions alternating) are printed side by side: where the two differ.
 
     .venv/bin/python bench/speed.py [--repeat 5] [--seed 1] [--scenario green|mixed|...] [--against 73286c1]
 """
@@ -108,6 +109,14 @@ def main() -> None:
                     _print_runs(name, times)
                 ratio = statistics.median(runs["this code"]) / statistics.median(runs[options.against])
                 print(f"this code / {options.against}: {ratio:.2f}")
+                starts: dict[str, list[float]] = {"this code": [], options.against: []}
+                for _ in range(3 * options.repeat):  # short and noisy: three times as many, alternating
+                    starts["this code"].append(_start_time(source=None))
+                    starts[options.against].append(_start_time(source=other))
+                print(
+                    "the command's start (the core's imports, s, median): "
+                    + ", ".join(f"{name} {statistics.median(times):.3f}" for name, times in starts.items())
+                )
                 stage_runs: dict[str, list[dict[str, float]]] = {"this code": [], options.against: []}
                 for _ in range(options.repeat):  # alternated too, each in a process of its own
                     stage_runs["this code"].append(_stage_times(capture, source=None))
@@ -165,6 +174,20 @@ def _timed_run(capture: Path, *, source: Path | None) -> float:
     started = time.perf_counter()
     subprocess.run(
         [str(canopy), "measure", str(capture), "--json"], check=True, capture_output=True, env=environment
+    )
+    return time.perf_counter() - started
+
+
+def _start_time(*, source: Path | None) -> float:
+    """Seconds a process takes to start and import what ``canopy measure`` imports before it measures, on
+    this code or on the source tree ``source``: the part of a run's time that is no measuring."""
+    environment = _environment(source)
+    started = time.perf_counter()
+    subprocess.run(
+        [sys.executable, "-c", "import canopy_core.cli, canopy_core.measure, canopy_core.cloud_io"],
+        check=True,
+        capture_output=True,
+        env=environment,
     )
     return time.perf_counter() - started
 
