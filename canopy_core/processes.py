@@ -160,14 +160,8 @@ def _at_once(function: Callable[[Item], Result], items: Sequence[Item], workers:
         finally:
             signal.pthread_sigmask(signal.SIG_SETMASK, held)
         # The first item that raised, and what it raised: only the items before it still matter.
-        failed: tuple[int, Exception] | None = None
         started = time.monotonic()
-        for index in range(0, len(items), workers):
-            try:
-                results[index] = function(items[index])
-            except Exception as error:
-                failed = (index, error)
-                break
+        failed = _in_order(function, items, range(0, len(items), workers), results)
         finished = time.monotonic()
         deadline = finished + _STUCK_FACTOR * (finished - started) + _STUCK_GRACE_S
         for share, child in children.items():
@@ -178,18 +172,27 @@ def _at_once(function: Callable[[Item], Result], items: Sequence[Item], workers:
             if done is not None:
                 results[share::workers] = done
                 continue
-            for index in range(share, before, workers):  # its process failed: done here, in order
-                try:
-                    results[index] = function(items[index])
-                except Exception as error:
-                    failed = (index, error)
-                    break
+            # Its process failed: done here, in order; an item that raises now comes before ``failed``'s.
+            failed = _in_order(function, items, range(share, before, workers), results) or failed
     finally:
         for child in children.values():
             _end(child)
     if failed is not None:
         raise failed[1]
     return results  # type: ignore[return-value]  # every slot filled above
+
+
+def _in_order(
+    function: Callable[[Item], Result], items: Sequence[Item], indices: range, results: list[Result | None]
+) -> tuple[int, Exception] | None:
+    """Work the ``items`` at ``indices`` here, in order, into ``results``; stop at the first that raises
+    and give its index and what it raised (None when none did)."""
+    for index in indices:
+        try:
+            results[index] = function(items[index])
+        except Exception as error:
+            return index, error
+    return None
 
 
 def _fork(
