@@ -10,6 +10,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from canopy_core import processes
@@ -104,6 +105,29 @@ def test_a_share_all_after_an_item_that_raised_is_not_waited_for(tmp_path: Path)
         on_each(refuse_one_linger_on_two, [0, 1, 2], processes=3)
     assert time.monotonic() - started < 30.0  # not the minute item 2 takes: its error could not come first
     assert not _running(int(pid_file.read_text()))
+
+
+def test_results_larger_than_a_pipe_holds_come_back_whole_without_the_other_process_waiting_to_send_them(
+    tmp_path: Path,
+) -> None:
+    parent = os.getpid()
+    pid_file = tmp_path / "child.pid"
+
+    def eight_megabytes(item: int) -> np.ndarray:
+        if os.getpid() != parent:
+            _write_pid(pid_file)
+        else:  # the other process ends, its results written, while this one is still at its own share
+            _wait_for(pid_file)
+            other = int(pid_file.read_text())
+            deadline = time.monotonic() + 30
+            while _running(other):
+                assert time.monotonic() < deadline, "the other process waits for this one to take its results"
+                time.sleep(0.02)
+        return np.full(1_000_000, float(item))
+
+    results = on_each(eight_megabytes, [1, 2], processes=2)
+    assert [result.shape for result in results] == [(1_000_000,)] * 2
+    assert [set(result.tolist()) for result in results] == [{1.0}, {2.0}]
 
 
 def test_a_share_whose_process_is_killed_is_done_again_here() -> None:
