@@ -879,9 +879,9 @@ def _vote_peaks(votes: np.ndarray, weights: np.ndarray, scene: _Scene, radius_m:
     # Queries on one thread: the views are searched at once, in processes of their own (see
     # canopy_core.processes), which use the cores.
     tree = cKDTree(votes)
-    # Each vote's count of votes within the radius, itself included, from the pairs that close: the same
-    # counts as asking for each vote's neighbours, in a third of the time (one walk of the tree, not one a
-    # vote).
+    # Each vote's count of votes within the radius, itself included, from the list of pairs of votes
+    # that close (one walk of the tree): the same counts as asking for each vote's neighbours (both count
+    # a distance equal to the radius), in a third of the time.
     pairs = tree.query_pairs(_VOTE_RADIUS * radius_m, output_type="ndarray")
     close = 1 + np.bincount(pairs.ravel(), minlength=votes.shape[0])
     strength = close / expected

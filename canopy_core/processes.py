@@ -9,6 +9,7 @@ share) and read from there once this process is done.
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import math
 import mmap
@@ -17,6 +18,7 @@ import pickle
 import select
 import signal
 import sys
+import tempfile
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -123,10 +125,10 @@ def on_each(
 
 
 _STUCK_FACTOR = 10.0
-"""A forked share is taken for stuck, killed and done here, when its results are not all in this many
-times as long after this process finished its own share (or met an item that raised) as that took (plus
-:data:`_STUCK_GRACE_S`): the views' shares are alike, and a deadlock in a process forked from a threaded
-one is rare but not impossible."""
+"""A forked share is taken for stuck, killed and done here, when it has not said its results are written
+this many times as long after this process finished its own share (or met an item that raised) as that
+took (plus :data:`_STUCK_GRACE_S`): the views' shares are alike, and a deadlock in a process forked from a
+threaded one is rare but not impossible."""
 
 _STUCK_GRACE_S = 30.0
 """Seconds added to the wait for a forked share, whatever this process's own share took."""
@@ -162,7 +164,11 @@ def _at_once(function: Callable[[Item], Result], items: Sequence[Item], workers:
     results: list[Result | None] = [None] * len(items)
     try:
         held = signal.pthread_sigmask(signal.SIG_BLOCK, _HELD_SIGNALS)
-        try:  # a Ctrl-C taken now would leave a child forked but not yet among ``children``
+        # Held back in this thread, a Ctrl-C cannot leave a child forked but not yet among ``children``.
+        # Another thread of this process (a BLAS library's) may still take it and have it raised here; in
+        # the few instructions between a fork and its child's entry, that child then works its share and
+        # exits unreaped, or dies with this process.
+        try:
             for share in range(1, workers):
                 children[share] = _fork(function, items[share::workers], mask=held)
         finally:
@@ -216,23 +222,22 @@ def _fork(
     child to exit. Results of 10 MB (a view's evidence is about 7 MB) took this process 35-40 ms to
     collect that way, here, and take 8 ms from the file.
     """
-    try:
-        read_end, write_end = os.pipe()
-    except OSError:
-        return None
-    try:
-        results = os.memfd_create("canopy-results", os.MFD_CLOEXEC)
-    except OSError:
-        for end in (read_end, write_end):
-            os.close(end)
-        return None
     parent = os.getpid()
+    opened: list[int] = []
     try:
+        results = _results_file()
+        opened.append(results)
+        read_end, write_end = os.pipe()
+        opened += [read_end, write_end]
         pid = os.fork()
-    except OSError:
-        for end in (read_end, write_end, results):
-            os.close(end)
-        return None
+    except BaseException as error:  # out of files, memory or processes; or a Ctrl-C (see _at_once)
+        if os.getpid() != parent:
+            os._exit(1)  # a Ctrl-C taken in the new process before its block: never the caller's code
+        for descriptor in opened:
+            os.close(descriptor)
+        if isinstance(error, OSError):
+            return None
+        raise
     if pid != 0:
         os.close(write_end)
         return _Child(pid, read_end, results)
@@ -253,6 +258,16 @@ def _fork(
         os._exit(code)
 
 
+def _results_file() -> int:
+    """A descriptor of a new anonymous file for a forked process's results: in memory (``memfd_create``)
+    where this Python has it (one built against a C library older than glibc 2.27 has not), else an unnamed
+    temporary file."""
+    if hasattr(os, "memfd_create"):
+        return os.memfd_create("canopy-results", os.MFD_CLOEXEC)
+    with tempfile.TemporaryFile() as file:
+        return os.dup(file.fileno())
+
+
 def _die_with(parent: int) -> None:
     """Have the kernel kill this process when its parent dies (Linux's ``PR_SET_PDEATHSIG``), and exit at
     once if it is dead already: a measurement the service stops (its timeout, a lost lease) is SIGKILLed,
@@ -265,8 +280,8 @@ def _die_with(parent: int) -> None:
 
 def _collect(child: _Child | None, deadline: float) -> list[Any] | None:
     """The results ``child`` wrote, once it has said their size; None when it could not fork, ended
-    without saying it (it failed, or was killed), or said nothing by ``deadline`` (a ``time.monotonic()``
-    time; :func:`_end` then kills it)."""
+    without saying it (it failed, or was killed), said nothing by ``deadline`` (a ``time.monotonic()``
+    time; :func:`_end` then kills it), or what it wrote cannot be read back."""
     if child is None:
         return None
     waiting = select.poll()
@@ -283,19 +298,20 @@ def _collect(child: _Child | None, deadline: float) -> list[Any] | None:
     try:
         with mmap.mmap(child.results, int.from_bytes(said, "little"), prot=mmap.PROT_READ) as written:
             results: list[Any] = pickle.loads(written)
-    except Exception:  # a result that pickles but does not unpickle: done again in this process
+    except Exception:  # a result that pickles but does not unpickle, or a file cut short: done again here
         return None
     return results
 
 
 def _end(child: _Child | None) -> None:
-    """Close ``child``'s pipe and file and reap it, killing it first if it is still running (it is
-    leaving, its results read; or this process is leaving early: an exception, Ctrl-C, or the child was
-    stuck)."""
+    """Close ``child``'s pipe and file and reap it, killing it first if it is still running: exiting, its
+    results read, or still at work because this process leaves early (an exception, Ctrl-C, a child taken
+    for stuck). A child already reaped by another (this process ignoring SIGCHLD) is passed over."""
     if child is None:
         return
     os.close(child.read_end)
     os.close(child.results)
-    if os.waitpid(child.pid, os.WNOHANG) == (0, 0):
-        os.kill(child.pid, signal.SIGKILL)
-        os.waitpid(child.pid, 0)
+    with contextlib.suppress(ChildProcessError, ProcessLookupError):
+        if os.waitpid(child.pid, os.WNOHANG) == (0, 0):
+            os.kill(child.pid, signal.SIGKILL)
+            os.waitpid(child.pid, 0)

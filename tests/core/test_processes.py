@@ -113,7 +113,7 @@ def test_results_larger_than_a_pipe_holds_come_back_whole_without_the_other_proc
     parent = os.getpid()
     pid_file = tmp_path / "child.pid"
 
-    def eight_megabytes(item: int) -> np.ndarray:
+    def eight_megabytes(item: int) -> tuple[int, np.ndarray]:
         if os.getpid() != parent:
             _write_pid(pid_file)
         else:  # the other process ends, its results written, while this one is still at its own share
@@ -123,11 +123,23 @@ def test_results_larger_than_a_pipe_holds_come_back_whole_without_the_other_proc
             while _running(other):
                 assert time.monotonic() < deadline, "the other process waits for this one to take its results"
                 time.sleep(0.02)
-        return np.full(1_000_000, float(item))
+        return os.getpid(), np.full(1_000_000, float(item))
 
     results = on_each(eight_megabytes, [1, 2], processes=2)
-    assert [result.shape for result in results] == [(1_000_000,)] * 2
-    assert [set(result.tolist()) for result in results] == [{1.0}, {2.0}]
+    # Item 2's result is the other process's, not worked out again here after a failure to take it.
+    assert [worker for worker, _ in results] == [parent, int(pid_file.read_text())]
+    assert [result.shape for _, result in results] == [(1_000_000,)] * 2
+    assert [set(result.tolist()) for _, result in results] == [{1.0}, {2.0}]
+
+
+def test_without_memfd_create_the_results_come_back_through_a_temporary_file(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.delattr(os, "memfd_create")  # a Python built against a C library older than glibc 2.27
+    results = on_each(_square_and_where, [1, 2, 3, 4], processes=2)
+    assert [value for value, _ in results] == [1, 4, 9, 16]
+    assert [pid for _, pid in results][0::2] == [os.getpid()] * 2
+    assert os.getpid() not in [pid for _, pid in results][1::2]
 
 
 def test_a_share_whose_process_is_killed_is_done_again_here() -> None:
