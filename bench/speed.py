@@ -1,13 +1,14 @@
 """Speed benchmark: wall time of ``canopy measure --json`` on a two-view native Kinect v2 capture.
 
 Runs the real command (process start, imports, loading, the whole pipeline, JSON output) ``--repeat`` times
-and prints each time and the median; then the in-process time per stage (the median of ``--repeat`` runs
-in one process, after one to warm up). Each version runs from bytecode, as an installed package does (pip
-compiles it on install; an editable install on first import): compiled into a scratch folder by one
-untimed run, whatever ``PYTHONDONTWRITEBYTECODE`` says, since compiling 11 000 lines of source at every
-start (about 0.2 s here) is no part of what a user waits for. The capture is the simulator's plain green
-scene, the reference of the speed figures since 2026-11-22; ``--scenario mixed`` times a cluttered orchard
-instead, whose balls take longer to find (many more spheres of their colours to weigh).
+and prints each time and the median, and the median CPU time it and the processes it forked used, in user code
+and in the kernel (page faults, forks); then the in-process time per stage (the median of ``--repeat`` runs in
+one process, after one to warm up). Each version runs from bytecode, as an installed package does (pip
+compiles it on install; an editable install on first import): compiled into a scratch folder by one untimed
+run, whatever ``PYTHONDONTWRITEBYTECODE`` says, since compiling 11 000 lines of source at every start (about
+0.2 s here) is no part of what a user waits for. The capture is the simulator's plain green scene, the
+reference of the speed figures since 2026-11-22; ``--scenario mixed`` times a cluttered orchard instead, whose
+balls take longer to find (many more spheres of their colours to weigh).
 
 With ``--against REV`` the same capture is also measured by the code of git revision ``REV`` (checked out
 in a temporary worktree, run with this environment's packages), the two alternating run by run, and the
@@ -26,11 +27,13 @@ import argparse
 import inspect
 import json
 import os
+import resource
 import statistics
 import subprocess
 import sys
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -87,8 +90,7 @@ def main() -> None:
         )
         if options.against is None:
             _timed_run(capture, source=None)  # compiles the bytecode
-            times = [_timed_run(capture, source=None) for _ in range(options.repeat)]
-            _print_runs("this code", times)
+            _print_runs("this code", [_timed_run(capture, source=None) for _ in range(options.repeat)])
         else:
             other = Path(scratch) / "against"
             worktree = ["git", "-C", str(REPOSITORY), "worktree"]
@@ -100,14 +102,14 @@ def main() -> None:
             if added.returncode != 0:
                 sys.exit(f"cannot check out {options.against} to compare with: {added.stderr.strip()}")
             try:
-                runs: dict[str, list[float]] = {"this code": [], options.against: []}
+                runs: dict[str, list[_Run]] = {"this code": [], options.against: []}
                 _timed_run(capture, source=None), _timed_run(capture, source=other)  # compile the bytecode
                 for _ in range(options.repeat):
                     runs["this code"].append(_timed_run(capture, source=None))
                     runs[options.against].append(_timed_run(capture, source=other))
-                for name, times in runs.items():
-                    _print_runs(name, times)
-                ratio = statistics.median(runs["this code"]) / statistics.median(runs[options.against])
+                for name, version_runs in runs.items():
+                    _print_runs(name, version_runs)
+                ratio = _median_wall(runs["this code"]) / _median_wall(runs[options.against])
                 print(f"this code / {options.against}: {ratio:.2f}")
                 starts: dict[str, list[float]] = {"this code": [], options.against: []}
                 for _ in range(3 * options.repeat):  # short and noisy: three times as many, alternating
@@ -166,16 +168,35 @@ def _print_stages(stages: dict[str, dict[str, float]]) -> None:
         print(f"  {name:<10}" + "".join(f"{times.get(name, 0.0):>{width}.3f}" for times in stages.values()))
 
 
-def _timed_run(capture: Path, *, source: Path | None) -> float:
-    """Seconds one ``canopy measure --json`` takes, on this code or on the source tree ``source`` (put
-    first on the import path, before the installed package)."""
+@dataclass(frozen=True)
+class _Run:
+    """One ``canopy measure --json``: how long it took, and the CPU it used."""
+
+    wall_s: float
+    user_s: float
+    system_s: float
+    """The CPU time in user code and in the kernel (page faults, forks, memory), seconds, of the command and
+    of the processes it forked for its views."""
+
+
+def _timed_run(capture: Path, *, source: Path | None) -> _Run:
+    """One ``canopy measure --json``, on this code or on the source tree ``source`` (put first on the
+    import path, before the installed package)."""
     canopy = Path(sys.executable).with_name("canopy")
     environment = _environment(source)
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     started = time.perf_counter()
     subprocess.run(
         [str(canopy), "measure", str(capture), "--json"], check=True, capture_output=True, env=environment
     )
-    return time.perf_counter() - started
+    wall_s = time.perf_counter() - started
+    # The command waits for the processes it forks, so their time is counted in its own.
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return _Run(wall_s, after.ru_utime - before.ru_utime, after.ru_stime - before.ru_stime)
+
+
+def _median_wall(runs: list[_Run]) -> float:
+    return statistics.median(run.wall_s for run in runs)
 
 
 def _start_time(*, source: Path | None) -> float:
@@ -202,11 +223,16 @@ def _environment(source: Path | None) -> dict[str, str]:
     return environment
 
 
-def _print_runs(name: str, times: list[float]) -> None:
+def _print_runs(name: str, runs: list[_Run]) -> None:
+    """Each run's wall time and the median; the median CPU time, in user code and in the kernel: a
+    version whose views run at once uses more CPU than its wall time, one that runs them one after the
+    other less."""
+    user_s = statistics.median(run.user_s for run in runs)
+    system_s = statistics.median(run.system_s for run in runs)
     print(
         f"{name}: runs (s) "
-        + ", ".join(f"{t:.2f}" for t in times)
-        + f"; median {statistics.median(times):.2f} s"
+        + ", ".join(f"{run.wall_s:.2f}" for run in runs)
+        + f"; median {_median_wall(runs):.2f} s; CPU median {user_s:.2f} s user, {system_s:.2f} s system"
     )
 
 
