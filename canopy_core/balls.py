@@ -168,11 +168,15 @@ class BallCandidate:
 
     def score(self, color: str, *, radius_m: float) -> float:
         """How likely this is the ``color`` ball, in [0, 1]: completeness times a Gaussian of the radius's
-        relative error times the colour score.
+        relative error times the colour score times the coverage of its outline.
 
         The Gaussian's spread is ``_RADIUS_SPREAD`` widened by the fit's relative residual: in hard sun the
         depth noise alone moves a small ball's free radius by 10-20 %, and it must not then lose to a
-        cleaner sphere of the wrong size.
+        cleaner sphere of the wrong size. The coverage weighs what the colour and the radius cannot: a
+        solid ball hides what lies behind it, a sphere fitted across something else (a fallen apple and
+        what lies round it) shows some of it through its outline. Without it, on mixed 2118004, a fallen
+        red apple 85 mm across, which both views see and fit with a radius of 48-52 mm, outscored the red
+        ball, which mixed pixels at its rim shrank to 45-46 mm.
         """
         radius_error = (self.fit.radius_m - radius_m) / radius_m
         spread = float(np.hypot(_RADIUS_SPREAD, self.fit.rms_m / radius_m))
@@ -180,6 +184,7 @@ class BallCandidate:
             min(self.completeness, 1.0)
             * float(np.exp(-0.5 * (radius_error / spread) ** 2))
             * self.color_scores[color]
+            * self.fit.coverage
         )
 
     def objection(self, color: str, config: BallConfig) -> Objection | None:
