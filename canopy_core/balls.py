@@ -928,12 +928,12 @@ def _blob_centres(
 ) -> list[np.ndarray]:
     """Likely centres of the compact groups of a colour's points that have a ball's size, largest first.
 
-    The second source of candidates, used when the votes found no plausible ball of the colour: a small
-    far ball in sun has normals too noisy to gather votes, but its points that surely have its colour
-    stand alone. A group is a connected set of pixels (8-neighbourhood) without a depth step of a radius;
-    it is ball-sized when it is from half a diameter (a ball mostly hidden) to
-    ``_MAX_BLOB_DIAMETERS`` diameters across at its depth. Its likely centre lies one radius behind its
-    mean point, along the line of sight.
+    The second source of candidates, tried whatever the votes found: a small far ball in sun has normals
+    too noisy to gather votes, but its points that surely have its colour stand alone; and where the votes
+    find a plausible look-alike, the ball may come from a group alone (2054014: views/2's yellow ball). A
+    group is a connected set of pixels (8-neighbourhood) without a depth step of a radius; it is
+    ball-sized when it is from half a diameter (a ball mostly hidden) to ``_MAX_BLOB_DIAMETERS`` diameters
+    across at its depth. Its likely centre lies one radius behind its mean point, along the line of sight.
     """
     if points_m.shape[0] < min_points:
         return []
