@@ -634,17 +634,3 @@ def test_the_search_where_other_views_place_the_balls_stays_bounded_with_look_al
     assert carried[0][:2] == first_two  # the first view's search: the other two views' likeliest first
     for view in (1, 2):
         assert {id(t) for t in carried[0]} >= {id(t) for _, t in grown[view][:_ANCHORS_PER_VIEW]}
-
-
-def test_a_sphere_that_shows_what_lies_behind_it_scores_below_a_solid_one() -> None:
-    """Two spheres alike in points, radius, residual and colour: the one through whose outline a third of the
-    points seen lie behind its surface (a fallen apple and the ground beyond it, fitted as one sphere)
-    scores below the one that hides what is behind it, as a solid ball does, in proportion."""
-    solid = SphereFit(np.array([0.0, 1.2, 3.5]), 0.048, 70, 0.004, 0.96)
-    hollow = replace(solid, coverage=0.64)
-    scores = {"red": 1.0, "yellow": 0.0, "blue": 0.0}
-    ball = BallCandidate(fit=solid, expected_points=70.0, color_scores=scores)
-    look_alike = BallCandidate(fit=hollow, expected_points=70.0, color_scores=scores)
-    assert look_alike.score("red", radius_m=0.05) == pytest.approx(
-        ball.score("red", radius_m=0.05) * 0.64 / 0.96
-    )

@@ -6,14 +6,21 @@ from __future__ import annotations
 import json
 import re
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from canopy_core.backproject import ViewCloud, backproject
-from canopy_core.balls import color_likelihood, color_mask, detect_ball, detect_balls, find_ball_candidates
+from canopy_core.balls import (
+    BallCandidate,
+    color_likelihood,
+    color_mask,
+    detect_ball,
+    detect_balls,
+    find_ball_candidates,
+)
 from canopy_core.capture import load_capture
 from canopy_core.config import BallConfig
 from canopy_core.errors import BallNotFound
@@ -493,6 +500,20 @@ def test_a_large_area_of_the_ball_colour_alone_is_not_a_ball() -> None:
     error = _ball_not_found(_render_view([], [jacket]), "blue", BallConfig())
 
     assert re.search(r"no sphere of about 50 mm radius among the \d{4,} blue points", error.message)
+
+
+def test_a_sphere_that_shows_what_lies_behind_it_scores_below_a_solid_one() -> None:
+    """Two spheres alike in points, radius, residual and colour: the one through whose outline a third of the
+    points seen lie behind its surface (a fallen apple and the ground beyond it, fitted as one sphere)
+    scores below the one that hides what is behind it, as a solid ball does, in proportion."""
+    solid = SphereFit(np.array([0.0, 1.2, 3.5]), 0.048, 70, 0.004, 0.96)
+    hollow = replace(solid, coverage=0.64)
+    scores = {"red": 1.0, "yellow": 0.0, "blue": 0.0}
+    ball = BallCandidate(fit=solid, expected_points=70.0, color_scores=scores)
+    look_alike = BallCandidate(fit=hollow, expected_points=70.0, color_scores=scores)
+    assert look_alike.score("red", radius_m=0.05) == pytest.approx(
+        ball.score("red", radius_m=0.05) * 0.64 / 0.96
+    )
 
 
 # --- real Kinect v2 frames ----------------------------------------------------------------------------------
