@@ -196,6 +196,7 @@ def _timed_run(capture: Path, *, source: Path | None) -> _Run:
 
 
 def _median_wall(runs: list[_Run]) -> float:
+    """The median wall time of ``runs``, seconds."""
     return statistics.median(run.wall_s for run in runs)
 
 

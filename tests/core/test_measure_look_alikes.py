@@ -138,10 +138,11 @@ def test_a_choice_made_again_that_makes_the_trunks_coincide_stands_though_icp_mo
 def test_a_look_alike_both_views_see_loses_to_the_ball_for_what_it_shows_behind_it(tmp_path: Path) -> None:
     """Mixed seed 2118004 (a tuning set): both views show the red ball whole and, 0.2 m from the blue ball,
     a fallen red apple 85 mm across, fitted with a radius of 48-52 mm; both views see it, so its triangle
-    agrees too. The ball, fitted at 45-46 mm (mixed pixels at a far ball's rim shrink it), lost on its
-    radius by 0.014 of the total score; the apple's sphere shows what lies behind it through its outline
-    (coverage 0.90 and 0.64 against the ball's 0.96 and 0.85), and with coverage in the score the ball is
-    chosen in both views (the apple, 105 cm off, before; ICP had measured the tree right regardless)."""
+    agrees too. The ball, fitted at 45-46 mm (mixed pixels at a far ball's rim shrink it), led in views/1
+    and lost in views/2 on its radius, 0.018 behind in the total score; the apple's sphere shows what lies
+    behind it through its outline (coverage 0.90 and 0.64 against the ball's 0.96 and 0.85), and with
+    coverage in the score the ball is chosen in both views (the apple, 105 cm off, before; ICP had measured
+    the tree right regardless)."""
     capture = simulate_capture(tmp_path / "tree", seed=2118004, n_views=2, scenario="mixed")
     truth = truth_of(capture)
     result = measure(capture)
