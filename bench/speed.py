@@ -11,12 +11,15 @@ reference of the speed figures since 2026-11-22; ``--scenario mixed`` times a cl
 balls take longer to find (many more spheres of their colours to weigh).
 
 With ``--against REV`` the same capture is also measured by the code of git revision ``REV`` (checked out
-in a temporary worktree, run with this environment's packages), the two alternating run by run, and the
-ratio of the medians is printed: the honest way to compare two versions, since a shared or throttled
-machine's speed drifts by tens of per cent within an hour and by more from day to day. Then each version's
-start (a process importing what the command imports before it measures, alternating), and each version's
-in-process time per stage (the median of ``--repeat`` measurements, each in a process of its own after one
-to warm up, the versions alternating) are printed side by side: where the two differ.
+in a temporary worktree, run with this environment's packages), the two alternating run by run, each first
+in every other pair of runs: the honest way to compare two versions, since a shared or throttled machine's
+speed drifts by tens of per cent within an hour and by more from day to day. Printed are the ratio of the
+medians and, steadier, the median of the ratios pair by pair (each run of this code over the other
+version's run next to it, so that a drift slower than a pair of runs cancels), with its 95 % bootstrap
+interval: a ratio whose interval holds 1 shows no clear difference. Then each version's start (a process
+importing what the command imports before it measures, alternating), and each version's in-process time
+per stage (the median of ``--repeat`` measurements, each in a process of its own after one to warm up, the
+versions alternating) are printed side by side: where the two differ.
 
     .venv/bin/python bench/speed.py [--repeat 5] [--seed 1] [--scenario green|mixed|...] [--against 73286c1]
 """
@@ -36,6 +39,8 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from canopy_core.measure import measure
 
@@ -104,13 +109,17 @@ def main() -> None:
             try:
                 runs: dict[str, list[_Run]] = {"this code": [], options.against: []}
                 _timed_run(capture, source=None), _timed_run(capture, source=other)  # compile the bytecode
-                for _ in range(options.repeat):
-                    runs["this code"].append(_timed_run(capture, source=None))
-                    runs[options.against].append(_timed_run(capture, source=other))
+                for turn in range(options.repeat):
+                    # A pair of runs, each version first in every other pair: whatever running first
+                    # does to a run (a colder file cache, a busier machine) falls on both alike.
+                    order = [("this code", None), (options.against, other)]
+                    for name, source in order if turn % 2 == 0 else order[::-1]:
+                        runs[name].append(_timed_run(capture, source=source))
                 for name, version_runs in runs.items():
                     _print_runs(name, version_runs)
                 ratio = _median_wall(runs["this code"]) / _median_wall(runs[options.against])
-                print(f"this code / {options.against}: {ratio:.2f}")
+                paired = _paired(runs["this code"], runs[options.against])
+                print(f"this code / {options.against}: {ratio:.2f} (the medians); {paired}")
                 starts: dict[str, list[float]] = {"this code": [], options.against: []}
                 for _ in range(3 * options.repeat):  # short and noisy: three times as many, alternating
                     starts["this code"].append(_start_time(source=None))
@@ -200,9 +209,41 @@ def _median_wall(runs: list[_Run]) -> float:
     return statistics.median(run.wall_s for run in runs)
 
 
+_BOOTSTRAP_RESAMPLES = 10_000
+"""Resamples of the run-by-run ratios that :func:`_median_interval` draws."""
+
+_MIN_PAIRS_FOR_INTERVAL = 5
+"""Fewer pairs of runs than this give no interval: a bootstrap of two or three values is those values."""
+
+
+def _paired(mine: list[_Run], theirs: list[_Run]) -> str:
+    """The median of the ratios of this code's runs (``mine``) to the other version's (``theirs``), pair
+    by pair, and its 95 % bootstrap interval when there are enough pairs."""
+    ratios = [a.wall_s / b.wall_s for a, b in zip(mine, theirs, strict=True)]
+    said = f"run by run {statistics.median(ratios):.2f}"
+    if len(ratios) < _MIN_PAIRS_FOR_INTERVAL:
+        return f"{said} (too few pairs for an interval: {len(ratios)})"
+    low, high = _median_interval(ratios)
+    return f"{said}, 95 % bootstrap interval {low:.2f}-{high:.2f} ({len(ratios)} pairs)"
+
+
+def _median_interval(values: list[float]) -> tuple[float, float]:
+    """The 95 % percentile-bootstrap interval of the median of ``values`` (seeded: the same runs print the
+    same interval)."""
+    rng = np.random.default_rng(0)
+    drawn = rng.choice(np.asarray(values), size=(_BOOTSTRAP_RESAMPLES, len(values)), replace=True)
+    low, high = np.percentile(np.median(drawn, axis=1), [2.5, 97.5])
+    return float(low), float(high)
+
+
 def _start_time(*, source: Path | None) -> float:
     """Seconds a process takes to start and import what ``canopy measure`` imports before it measures, on
-    this code or on the source tree ``source``: the part of a run's time that is no measuring."""
+    this code or on the source tree ``source``: the part of a run's time that is no measuring.
+
+    The process runs in the source tree's folder (this repository's for this code): ``python -c`` puts its
+    working folder first on the import path, before ``PYTHONPATH``, so run from this repository it would
+    import this code whatever ``source`` is (until 2026-12-07 it did: both versions' starts were this
+    code's)."""
     environment = _environment(source)
     started = time.perf_counter()
     subprocess.run(
@@ -210,6 +251,7 @@ def _start_time(*, source: Path | None) -> float:
         check=True,
         capture_output=True,
         env=environment,
+        cwd=source if source is not None else REPOSITORY,
     )
     return time.perf_counter() - started
 
