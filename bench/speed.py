@@ -17,9 +17,9 @@ speed drifts by tens of per cent within an hour and by more from day to day. Pri
 medians and, steadier, the median of the ratios pair by pair (each run of this code over the other
 version's run next to it, so that a drift slower than a pair of runs cancels), with its 95 % bootstrap
 interval: a ratio whose interval holds 1 shows no clear difference. Then each version's start (a process
-importing what the command imports before it measures, alternating), and each version's in-process time
-per stage (the median of ``--repeat`` measurements, each in a process of its own after one to warm up, the
-versions alternating) are printed side by side: where the two differ.
+importing what the command imports before it measures) and its in-process time per stage (the median of
+``--repeat`` measurements, each in a process of its own after one to warm up), the versions taking turns
+as the runs do, are printed side by side: where the two differ.
 
     .venv/bin/python bench/speed.py [--repeat 5] [--seed 1] [--scenario green|mixed|...] [--against 73286c1]
 """
@@ -109,11 +109,9 @@ def main() -> None:
             try:
                 runs: dict[str, list[_Run]] = {"this code": [], options.against: []}
                 _timed_run(capture, source=None), _timed_run(capture, source=other)  # compile the bytecode
+                versions = [("this code", None), (options.against, other)]
                 for turn in range(options.repeat):
-                    # A pair of runs, each version first in every other pair: whatever running first
-                    # does to a run (a colder file cache, a busier machine) falls on both alike.
-                    order = [("this code", None), (options.against, other)]
-                    for name, source in order if turn % 2 == 0 else order[::-1]:
+                    for name, source in _in_turn(versions, turn):
                         runs[name].append(_timed_run(capture, source=source))
                 for name, version_runs in runs.items():
                     _print_runs(name, version_runs)
@@ -121,17 +119,17 @@ def main() -> None:
                 paired = _paired(runs["this code"], runs[options.against])
                 print(f"this code / {options.against}: {ratio:.2f} (the medians); {paired}")
                 starts: dict[str, list[float]] = {"this code": [], options.against: []}
-                for _ in range(3 * options.repeat):  # short and noisy: three times as many, alternating
-                    starts["this code"].append(_start_time(source=None))
-                    starts[options.against].append(_start_time(source=other))
+                for turn in range(3 * options.repeat):  # short and noisy: three times as many
+                    for name, source in _in_turn(versions, turn):
+                        starts[name].append(_start_time(source=source))
                 print(
                     "the command's start (the core's imports, s, median): "
                     + ", ".join(f"{name} {statistics.median(times):.3f}" for name, times in starts.items())
                 )
                 stage_runs: dict[str, list[dict[str, float]]] = {"this code": [], options.against: []}
-                for _ in range(options.repeat):  # alternated too, each in a process of its own
-                    stage_runs["this code"].append(_stage_times(capture, source=None))
-                    stage_runs[options.against].append(_stage_times(capture, source=other))
+                for turn in range(options.repeat):  # each in a process of its own
+                    for name, source in _in_turn(versions, turn):
+                        stage_runs[name].append(_stage_times(capture, source=source))
             finally:
                 subprocess.run([*worktree, "remove", "--force", str(other)], check=True)
             _print_stages({name: _median_stages(times) for name, times in stage_runs.items()})
@@ -207,6 +205,13 @@ def _timed_run(capture: Path, *, source: Path | None) -> _Run:
 def _median_wall(runs: list[_Run]) -> float:
     """The median wall time of ``runs``, seconds."""
     return statistics.median(run.wall_s for run in runs)
+
+
+def _in_turn(versions: list[tuple[str, Path | None]], turn: int) -> list[tuple[str, Path | None]]:
+    """The versions (name, source tree) in the order they run in pair ``turn``: each first in every other
+    pair, so that whatever running first does to a run (a colder file cache, a busier machine) falls on
+    both alike."""
+    return versions if turn % 2 == 0 else versions[::-1]
 
 
 _BOOTSTRAP_RESAMPLES = 10_000
