@@ -23,12 +23,12 @@ import cv2
 import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
 
 from canopy_core.backproject import ViewCloud
 from canopy_core.config import BallConfig
 from canopy_core.errors import BallNotFound
 from canopy_core.ground import GroundPlane, view_trunk_foot
+from canopy_core.kdtree import point_tree
 from canopy_core.normals import scatter_about_mean, scatter_normals
 from canopy_core.spheres import SphereFit, ransac_centre, refine_sphere, sphere_coverage, sphere_inliers
 from canopy_core.voxels import occupied_voxels
@@ -359,8 +359,8 @@ class ViewBallCandidates:
         if color is not None:
             likely = self.scene.likelihood[config.colors.index(color), nearby] >= _MAYBE_LIKELIHOOD
             may_be = likely | ~cloud.has_color[nearby]
-        close = cKDTree(centres_m).sparse_distance_matrix(
-            cKDTree(points), radius + _SUPPORT_REACH_M, output_type="ndarray"
+        close = point_tree(centres_m).sparse_distance_matrix(
+            point_tree(points), radius + _SUPPORT_REACH_M, output_type="ndarray"
         )  # every (centre, point) pair within reach, as arrays
         owner, neighbour = close["i"].astype(np.int64), close["j"].astype(np.int64)
         distance = np.linalg.norm(points[neighbour] - centres_m[owner], axis=1)
@@ -883,7 +883,7 @@ def _vote_peaks(votes: np.ndarray, weights: np.ndarray, scene: _Scene, radius_m:
         return []
     # Queries on one thread: the views are searched at once, in processes of their own (see
     # canopy_core.processes), which use the cores.
-    tree = cKDTree(votes)
+    tree = point_tree(votes)
     # Each vote's count of votes within the radius, itself included, from the list of pairs of votes
     # that close (one walk of the tree): the same counts as asking for each vote's neighbours (both count
     # a distance equal to the radius), in a third of the time.

@@ -12,6 +12,8 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
+from canopy_core.kdtree import point_tree
+
 __all__ = ["reliable_depth_mask", "sparse_point_mask", "with_neighbours"]
 
 
@@ -89,7 +91,7 @@ def sparse_point_mask(
     if points_m.shape[0] == 0:
         return np.zeros(0, dtype=bool)
     radius = np.maximum(radius_px * range_m / focal_px, 1e-3)
-    return with_neighbours(cKDTree(points_m), points_m, count=min_neighbors, radius_m=radius)
+    return with_neighbours(point_tree(points_m), points_m, count=min_neighbors, radius_m=radius)
 
 
 def with_neighbours(
@@ -105,5 +107,5 @@ def with_neighbours(
     if points_m.shape[0] == 0:
         return np.zeros(0, dtype=bool)
     reach = np.nextafter(float(np.max(radius_m)), np.inf)
-    distances, _ = tree.query(points_m, k=[count + 1], distance_upper_bound=reach, workers=-1)
+    distances, _ = tree.query(points_m, k=[count + 1], distance_upper_bound=reach)
     return distances[:, 0] <= radius_m

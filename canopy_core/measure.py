@@ -35,7 +35,6 @@ from canopy_core.ground import (
     GroundFrame,
     GroundPlane,
     ground_height_map,
-    horizontal_distance,
     view_ground_plane,
 )
 from canopy_core.metrics import (
@@ -558,7 +557,7 @@ def _beyond_roi_points(cloud: ViewCloud, world_from_view: np.ndarray, config: Me
     Stray points are not filtered out here as inside the cylinder: only lines of thin-line cells are sought
     among these, and a flying pixel stands alone."""
     world = apply(world_from_view, cloud.points_m)
-    reach = horizontal_distance(world, np.zeros(3), np.array([0.0, 0.0, 1.0]))
+    reach = np.linalg.norm(world[:, :2], axis=1)
     beyond = (reach >= config.roi.radius_m) & (reach <= config.wires.scene_radius_m)
     beyond &= (world[:, 2] > config.wires.scene_min_height_m) & (world[:, 2] < config.roi.max_height_m)
     return world[beyond]

@@ -25,6 +25,7 @@ from scipy.spatial import ConvexHull, QhullError, cKDTree
 from canopy_core.config import MetricsConfig
 from canopy_core.errors import MeasurementError
 from canopy_core.filters import with_neighbours
+from canopy_core.kdtree import point_tree
 from canopy_core.segment import is_wire_piece
 from canopy_core.trunk_axis import TrunkAxis
 from canopy_core.voxels import occupied_voxels
@@ -121,7 +122,11 @@ def highest_supported(points_m: np.ndarray, *, support_radius_m: float, support_
     highest point when none has that support."""
     order = np.argsort(-points_m[:, 2])
     return _first_supported(
-        cKDTree(points_m), points_m, order, support_radius_m=support_radius_m, support_points=support_points
+        point_tree(points_m),
+        points_m,
+        order,
+        support_radius_m=support_radius_m,
+        support_points=support_points,
     )
 
 
@@ -211,7 +216,7 @@ def supported_hull(
     xy = points_m[:, :2]
     alive = np.ones(points_m.shape[0], dtype=bool)
     if support_radius_m is not None and points_m.shape[0] > support_points:
-        neighbours = cKDTree(points_m)
+        neighbours = point_tree(points_m)
         while True:
             hull = _hull_vertices(xy[alive])
             indices = np.flatnonzero(alive)[hull]
@@ -383,9 +388,7 @@ def crown_mask(
     column = np.flatnonzero(candidates & in_column)
     near_column = crown & (radial <= trunk_column_m + link_m)
     if column.size and near_column.any():
-        distance, _ = cKDTree(points_m[near_column]).query(
-            points_m[column], distance_upper_bound=link_m, workers=-1
-        )
+        distance, _ = point_tree(points_m[near_column]).query(points_m[column], distance_upper_bound=link_m)
         crown[column[np.isfinite(distance)]] = True
     return crown
 
@@ -415,7 +418,7 @@ def ground_rising(
         return nothing
     levels, counts = np.unique(cells[in_crown, 2], return_counts=True)
     core = in_crown & (cells[:, 2] >= levels[np.argmax(counts)])
-    pairs = cKDTree(cells * _CROWN_VOXEL_M).query_pairs(r=link_m, output_type="ndarray")
+    pairs = point_tree(cells * _CROWN_VOXEL_M).query_pairs(r=link_m, output_type="ndarray")
     n, links = cells.shape[0], pairs.shape[0]
     source, sink = n, n + 1
     tails = np.concatenate([pairs[:, 0], pairs[:, 1], np.full(on_ground.sum(), source), np.flatnonzero(core)])
@@ -450,7 +453,7 @@ def _bodies(points_m: np.ndarray, *, link_m: float) -> tuple[np.ndarray, np.ndar
     """Each point's body (points joined through occupied voxels closer than ``link_m``), and each body's
     number of voxels."""
     cells, voxel = _voxels(points_m)
-    pairs = cKDTree(cells * _CROWN_VOXEL_M).query_pairs(r=link_m, output_type="ndarray")
+    pairs = point_tree(cells * _CROWN_VOXEL_M).query_pairs(r=link_m, output_type="ndarray")
     graph = coo_matrix(
         (np.ones(pairs.shape[0], dtype=np.int8), (pairs[:, 0], pairs[:, 1])), shape=(len(cells), len(cells))
     )
@@ -480,7 +483,7 @@ def lowest_crown_point(
     candidates = points_m[members]
     order = np.argsort(candidates[:, 2])[:5000]
     lowest = _first_supported(
-        cKDTree(candidates),
+        point_tree(candidates),
         candidates,
         order,
         support_radius_m=support_radius_m,

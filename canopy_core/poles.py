@@ -25,10 +25,10 @@ import cv2
 import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
 
 from canopy_core.config import PoleConfig
 from canopy_core.ground import CLEARLY_NEARER, crown_middle
+from canopy_core.kdtree import point_tree
 from canopy_core.trunk_axis import SOLID_INSIDE_SHARE, TrunkAxis
 
 __all__ = ["Pole", "find_poles", "pole_mask"]
@@ -266,7 +266,7 @@ def _straight_chains(
     if compact.size < 2:
         return [], alone
     lean = np.tan(np.radians(config.max_lean_deg))
-    pairs = cKDTree(centres[compact]).query_pairs(
+    pairs = point_tree(centres[compact]).query_pairs(
         r=config.tolerance_m + 2 * lean * config.slab_m, output_type="ndarray"
     )
     apart = np.abs(group_slab[compact[pairs[:, 0]]] - group_slab[compact[pairs[:, 1]]])

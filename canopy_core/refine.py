@@ -29,6 +29,7 @@ from scipy.spatial.transform import Rotation
 
 from canopy_core.config import IcpConfig
 from canopy_core.errors import RegistrationFailed
+from canopy_core.kdtree import point_tree
 from canopy_core.normals import neighbourhood_normals
 from canopy_core.register import apply, pose_change
 from canopy_core.voxels import occupied_voxels
@@ -98,7 +99,7 @@ class IcpRefinement:
 
 def alignment_quality(points_m: np.ndarray, others: cKDTree, *, max_distance_m: float) -> AlignmentQuality:
     """Correspondence statistics of ``points_m`` against the points indexed by ``others``."""
-    distance, _ = others.query(points_m, distance_upper_bound=max_distance_m, workers=-1)
+    distance, _ = others.query(points_m, distance_upper_bound=max_distance_m)
     matched = distance[np.isfinite(distance)]
     if matched.size == 0:
         return AlignmentQuality(0.0, None, None, None)
@@ -142,7 +143,7 @@ def icp_surface(points_m: np.ndarray, voxel_m: float) -> IcpSurface:
     sums = np.column_stack([np.bincount(voxels.of_point, weights=points_m[:, axis]) for axis in range(3)])
     thinned = sums / voxels.counts[:, None]
     neighbours = min(_NORMAL_NEIGHBOURS, thinned.shape[0])
-    _, index = cKDTree(thinned).query(thinned, k=neighbours, workers=-1)
+    _, index = point_tree(thinned).query(thinned, k=neighbours)
     normals = neighbourhood_normals(thinned, index.reshape(thinned.shape[0], neighbours))
     return IcpSurface(thinned, normals, int(points_m.shape[0]))
 
@@ -171,7 +172,7 @@ def anchored_icp(
     correction = np.eye(4)
     for _ in range(iterations):
         moved = apply(correction, source_m)
-        distance, index = target.query(moved, distance_upper_bound=max_correspondence_m, workers=-1)
+        distance, index = target.query(moved, distance_upper_bound=max_correspondence_m)
         matched = np.isfinite(distance)
         p, q, n = moved[matched], target.data[index[matched]], target_normals[index[matched]]
         anchors = apply(correction, source_anchors_m)
@@ -250,7 +251,7 @@ def refine_views(
         points = surfaces[index].points_m
         others = [surface for j, surface in enumerate(surfaces) if j != index]
         moves = [correction for j, correction in enumerate(corrections) if j != index]
-        others_tree = cKDTree(
+        others_tree = point_tree(
             np.concatenate([apply(move, other.points_m) for move, other in zip(moves, others, strict=True)])
         )
         target_normals = np.concatenate(

@@ -42,6 +42,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from canopy_core.kdtree import point_tree
 from canopy_core.voxels import occupied_voxels
 
 __all__ = ["Wire", "find_wires", "is_wire_piece", "tree_component", "wire_mask"]
@@ -193,7 +194,7 @@ def tree_component(
     voxels = occupied_voxels(points_m, voxel_m)
     cells, point_cell = voxels.cells, voxels.of_point
     centres = (cells + 0.5) * voxel_m
-    pairs = cKDTree(centres).query_pairs(r=link_m, output_type="ndarray")
+    pairs = point_tree(centres).query_pairs(r=link_m, output_type="ndarray")
     graph = coo_matrix(
         (np.ones(pairs.shape[0], dtype=np.int8), (pairs[:, 0], pairs[:, 1])), shape=(len(cells), len(cells))
     )
@@ -266,7 +267,9 @@ def find_wires(
     sight = (
         None
         if cameras_m is None
-        else _SightLines([cKDTree(views_m[i]) for i in seen_by], [np.asarray(cameras_m[i]) for i in seen_by])
+        else _SightLines(
+            [point_tree(views_m[i]) for i in seen_by], [np.asarray(cameras_m[i]) for i in seen_by]
+        )
     )
     cells = np.concatenate(views)
     line_cells = [_line_cells(view, tolerance_m) for view in views]
@@ -518,7 +521,7 @@ class _SightLines:
             samples = camera + (steps[None, :, None] / lengths[:, None, None]) * rays[:, None, :]
             # The nearest point alone tells whether any lies within reach: a bounded search stops early.
             nearest, _ = tree.query(
-                samples[inside], distance_upper_bound=np.nextafter(_SIGHT_RADIUS_M, np.inf), workers=-1
+                samples[inside], distance_upper_bound=np.nextafter(_SIGHT_RADIUS_M, np.inf)
             )
             near = nearest <= _SIGHT_RADIUS_M
             blocked = np.zeros(inside.shape, dtype=bool)
@@ -566,9 +569,7 @@ def _line_cells(cells_m: np.ndarray, tolerance_m: float) -> tuple[np.ndarray, np
     radius = _WIRE_NEIGHBOURHOOD_M
     line = int(np.ceil(2 * radius / tolerance_m + 1))
     most = 2 * line
-    distances, neighbours = cKDTree(cells_m).query(
-        cells_m, k=most + 1, distance_upper_bound=radius, workers=-1
-    )
+    distances, neighbours = point_tree(cells_m).query(cells_m, k=most + 1, distance_upper_bound=radius)
     found = np.isfinite(distances)
     count = found.sum(axis=1)
     sparse = count <= most
@@ -690,7 +691,7 @@ def _straight_stretches(pool_m: np.ndarray, *, tolerance_m: float) -> list[tuple
     """
     if pool_m.shape[0] < 3:
         return []
-    pairs = cKDTree(pool_m).query_pairs(_WIRE_NEIGHBOURHOOD_M, output_type="ndarray")
+    pairs = point_tree(pool_m).query_pairs(_WIRE_NEIGHBOURHOOD_M, output_type="ndarray")
     graph = coo_matrix(
         (np.ones(pairs.shape[0], dtype=np.int8), (pairs[:, 0], pairs[:, 1])), shape=(len(pool_m),) * 2
     )
