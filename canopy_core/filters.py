@@ -10,9 +10,8 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
-from scipy.spatial import cKDTree
 
-from canopy_core.kdtree import point_tree
+from canopy_core.kdtree import NearestTree
 
 __all__ = ["reliable_depth_mask", "sparse_point_mask", "with_neighbours"]
 
@@ -91,11 +90,11 @@ def sparse_point_mask(
     if points_m.shape[0] == 0:
         return np.zeros(0, dtype=bool)
     radius = np.maximum(radius_px * range_m / focal_px, 1e-3)
-    return with_neighbours(point_tree(points_m), points_m, count=min_neighbors, radius_m=radius)
+    return with_neighbours(NearestTree(points_m), points_m, count=min_neighbors, radius_m=radius)
 
 
 def with_neighbours(
-    tree: cKDTree, points_m: np.ndarray, *, count: int, radius_m: float | np.ndarray
+    tree: NearestTree, points_m: np.ndarray, *, count: int, radius_m: float | np.ndarray
 ) -> np.ndarray:
     """Mask of ``points_m``, each one of ``tree``'s points, that have at least ``count`` others of the
     tree within ``radius_m`` (one radius, or one per point).
@@ -107,5 +106,5 @@ def with_neighbours(
     if points_m.shape[0] == 0:
         return np.zeros(0, dtype=bool)
     reach = np.nextafter(float(np.max(radius_m)), np.inf)
-    distances, _ = tree.query(points_m, k=[count + 1], distance_upper_bound=reach)
-    return distances[:, 0] <= radius_m
+    distances, _ = tree.query(points_m, k=count + 1, distance_upper_bound=reach)
+    return distances.reshape(points_m.shape[0], -1)[:, -1] <= radius_m

@@ -14,7 +14,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from canopy_core.config import GroundConfig
-from canopy_core.kdtree import point_tree
+from canopy_core.kdtree import NearestTree
 
 __all__ = [
     "CAMERA_UP",
@@ -493,7 +493,7 @@ def crown_middle(above_xy: np.ndarray, uprights_xy: np.ndarray, *, min_points: i
     5th and 95th percentiles along x and y, the middle of what they span. Not their mean or median: each
     view sees its near side of the crown more densely than the other's, and a vase crown is a hollow shell.
     None when fewer than ``min_points`` stand there."""
-    distance, _ = point_tree(uprights_xy).query(above_xy, distance_upper_bound=UPRIGHT_CLEARANCE_M)
+    distance, _ = NearestTree(uprights_xy).query(above_xy, distance_upper_bound=UPRIGHT_CLEARANCE_M)
     clear = above_xy[~np.isfinite(distance)]
     if clear.shape[0] < max(min_points, 1):
         return None
@@ -657,6 +657,6 @@ def ground_height_map(
     heights.ravel()[cell[starts]] = picked
     seen_cells = np.column_stack(np.nonzero(seen.reshape(size, size)))
     all_cells = np.indices((size, size)).reshape(2, -1).T
-    _, nearest = point_tree(seen_cells).query(all_cells)
+    _, nearest = NearestTree(seen_cells).query(all_cells)
     filled = heights[seen_cells[nearest, 0], seen_cells[nearest, 1]].reshape(size, size)
     return GroundHeightMap(origin_xy_m=origin, cell_m=cell_m, heights_m=filled)

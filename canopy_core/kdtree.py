@@ -1,27 +1,72 @@
-"""k-d trees over point clouds, for every neighbour search of the pipeline.
+"""k-d trees over point clouds, for every neighbour search of the pipeline: one kind for the k nearest
+neighbours of each point, another for pairs and balls.
 
-SciPy's default build splits each node at the median of its points and then shrinks every node's box to
-its points: trees that answer a search a little sooner, at twice the cost to build. The pipeline builds a
-tree for nearly every search it makes (tens per capture, over thousands to tens of thousands of points)
-and asks most of them one question, so it builds them the cheap way: split at the middle of the box,
-sliding to the nearest point when one side would be empty, boxes left as split. The searches are exact
-either way: the same neighbours, only their cost moves.
+The k nearest (:class:`NearestTree`) are searched by pykdtree, about twice as fast as SciPy's cKDTree on
+the pipeline's clouds, for the same distances to the last bit and the same neighbours (both searches are
+exact; only points at exactly equal distances might come in another order): the refinement's
+correspondences, the normals, the stray-point and support tests. Each search runs on one thread:
+pykdtree would start GNU OpenMP's threads, one per CPU, and those do not survive a fork: a process forked
+after them (the views' processes of :func:`canopy_core.processes.on_each`, or any program's that measures
+and then forks) waits for ever in its first search. One thread never starts them.
 
-The searches run on one thread (SciPy's ``workers`` left at 1). Split over threads started for each
-search, they were slower on the whole: most searches are small, and after the views' processes are forked
-the threaded searches of the refinement ran slower than one thread's, not faster (measured in
-docs/design.md, "2026-12-07: the k-d trees built and searched for less").
+Pairs within a distance and the points within a ball of each (:func:`point_tree`), which pykdtree does not
+search, by SciPy. SciPy's default build splits each node at the median of its points and then shrinks every
+node's box to its points: trees that answer a search a little sooner, at twice the cost to build. The
+pipeline builds a tree for nearly every search and asks most of them one question, so these are built the
+cheap way: split at the middle of the box, sliding to the nearest point when one side would be empty, boxes
+left as split; they are searched on one thread (SciPy's ``workers`` left at 1), since threads started for
+each search cost more than they saved.
+
+Measured in docs/design.md, "2026-12-07: the k-d trees built and searched for less".
 """
 
 from __future__ import annotations
 
 import numpy as np
+from pykdtree.kdtree import KDTree
 from scipy.spatial import cKDTree
+from threadpoolctl import ThreadpoolController
 
-__all__ = ["point_tree"]
+__all__ = ["NearestTree", "point_tree"]
+
+_OPENMP = ThreadpoolController().select(internal_api="openmp")
+"""The OpenMP runtimes loaded (pykdtree's among them), held to one thread for each search."""
+
+
+class NearestTree:
+    """The k nearest of fixed ``(N, d)`` points (``data``, float64) to each of a set of queries.
+
+    pykdtree's tree, answering as SciPy's ``cKDTree.query`` does where pykdtree does not: any number of
+    points (none included) and any k, the missing neighbours at an infinite distance with index N (pykdtree
+    gives k beyond N without a bound a huge finite distance and an index past N), indices as ``intp``.
+    """
+
+    def __init__(self, points: np.ndarray) -> None:
+        self.data = np.ascontiguousarray(points, dtype=np.float64)
+        self._tree = KDTree(self.data) if self.data.shape[0] else None
+
+    def query(
+        self, queries: np.ndarray, k: int = 1, *, distance_upper_bound: float = np.inf
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Distances and indices of each query's ``k`` nearest points closer than ``distance_upper_bound``,
+        nearest first: ``(M,)`` arrays for k 1, ``(M, k)`` else."""
+        queries = np.ascontiguousarray(queries, dtype=np.float64)
+        count = self.data.shape[0]
+        shape = (queries.shape[0],) if k == 1 else (queries.shape[0], k)
+        if self._tree is None or queries.shape[0] == 0:
+            return np.full(shape, np.inf), np.full(shape, count, dtype=np.intp)
+        bound = None if np.isinf(distance_upper_bound) else distance_upper_bound
+        with _OPENMP.limit(limits=1):
+            distances, found = self._tree.query(queries, k=k, distance_upper_bound=bound)
+        indices = found.astype(np.intp)
+        missing = indices >= count
+        if missing.any():
+            distances[missing] = np.inf
+            indices[missing] = count
+        return distances, indices
 
 
 def point_tree(points: np.ndarray) -> cKDTree:
-    """A k-d tree over ``(N, k)`` points, built by the sliding-midpoint rule without shrinking the nodes'
-    boxes (see the module's note)."""
+    """A tree for the pairs of ``(N, d)`` points within a distance, and the points within a ball: built by
+    the sliding-midpoint rule without shrinking the nodes' boxes (see the module's note)."""
     return cKDTree(points, balanced_tree=False, compact_nodes=False)

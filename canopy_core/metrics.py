@@ -20,12 +20,12 @@ from typing import Any
 import numpy as np
 from scipy.sparse import coo_matrix, csr_matrix
 from scipy.sparse.csgraph import breadth_first_order, connected_components, maximum_flow
-from scipy.spatial import ConvexHull, QhullError, cKDTree
+from scipy.spatial import ConvexHull, QhullError
 
 from canopy_core.config import MetricsConfig
 from canopy_core.errors import MeasurementError
 from canopy_core.filters import with_neighbours
-from canopy_core.kdtree import point_tree
+from canopy_core.kdtree import NearestTree, point_tree
 from canopy_core.segment import is_wire_piece
 from canopy_core.trunk_axis import TrunkAxis
 from canopy_core.voxels import occupied_voxels
@@ -122,7 +122,7 @@ def highest_supported(points_m: np.ndarray, *, support_radius_m: float, support_
     highest point when none has that support."""
     order = np.argsort(-points_m[:, 2])
     return _first_supported(
-        point_tree(points_m),
+        NearestTree(points_m),
         points_m,
         order,
         support_radius_m=support_radius_m,
@@ -157,7 +157,12 @@ def thin_top_m(points_m: np.ndarray, *, top_z_m: float, slab_m: float, width_m: 
 
 
 def _first_supported(
-    tree: cKDTree, points_m: np.ndarray, order: np.ndarray, *, support_radius_m: float, support_points: int
+    tree: NearestTree,
+    points_m: np.ndarray,
+    order: np.ndarray,
+    *,
+    support_radius_m: float,
+    support_points: int,
 ) -> int:
     """The first index of ``order`` (into ``points_m``, the points of ``tree``) whose point has at least
     ``support_points`` others within ``support_radius_m``; ``order[0]`` when none has."""
@@ -216,7 +221,7 @@ def supported_hull(
     xy = points_m[:, :2]
     alive = np.ones(points_m.shape[0], dtype=bool)
     if support_radius_m is not None and points_m.shape[0] > support_points:
-        neighbours = point_tree(points_m)
+        neighbours = NearestTree(points_m)
         while True:
             hull = _hull_vertices(xy[alive])
             indices = np.flatnonzero(alive)[hull]
@@ -388,7 +393,7 @@ def crown_mask(
     column = np.flatnonzero(candidates & in_column)
     near_column = crown & (radial <= trunk_column_m + link_m)
     if column.size and near_column.any():
-        distance, _ = point_tree(points_m[near_column]).query(points_m[column], distance_upper_bound=link_m)
+        distance, _ = NearestTree(points_m[near_column]).query(points_m[column], distance_upper_bound=link_m)
         crown[column[np.isfinite(distance)]] = True
     return crown
 
@@ -483,7 +488,7 @@ def lowest_crown_point(
     candidates = points_m[members]
     order = np.argsort(candidates[:, 2])[:5000]
     lowest = _first_supported(
-        point_tree(candidates),
+        NearestTree(candidates),
         candidates,
         order,
         support_radius_m=support_radius_m,

@@ -24,12 +24,11 @@ from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
-from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from canopy_core.config import IcpConfig
 from canopy_core.errors import RegistrationFailed
-from canopy_core.kdtree import point_tree
+from canopy_core.kdtree import NearestTree
 from canopy_core.normals import neighbourhood_normals
 from canopy_core.register import apply, pose_change
 from canopy_core.voxels import occupied_voxels
@@ -97,7 +96,9 @@ class IcpRefinement:
         return asdict(self)
 
 
-def alignment_quality(points_m: np.ndarray, others: cKDTree, *, max_distance_m: float) -> AlignmentQuality:
+def alignment_quality(
+    points_m: np.ndarray, others: NearestTree, *, max_distance_m: float
+) -> AlignmentQuality:
     """Correspondence statistics of ``points_m`` against the points indexed by ``others``."""
     distance, _ = others.query(points_m, distance_upper_bound=max_distance_m)
     matched = distance[np.isfinite(distance)]
@@ -143,14 +144,14 @@ def icp_surface(points_m: np.ndarray, voxel_m: float) -> IcpSurface:
     sums = np.column_stack([np.bincount(voxels.of_point, weights=points_m[:, axis]) for axis in range(3)])
     thinned = sums / voxels.counts[:, None]
     neighbours = min(_NORMAL_NEIGHBOURS, thinned.shape[0])
-    _, index = point_tree(thinned).query(thinned, k=neighbours)
+    _, index = NearestTree(thinned).query(thinned, k=neighbours)
     normals = neighbourhood_normals(thinned, index.reshape(thinned.shape[0], neighbours))
     return IcpSurface(thinned, normals, int(points_m.shape[0]))
 
 
 def anchored_icp(
     source_m: np.ndarray,
-    target: cKDTree,
+    target: NearestTree,
     target_normals: np.ndarray,
     source_anchors_m: np.ndarray,
     target_anchors_m: np.ndarray,
@@ -251,7 +252,7 @@ def refine_views(
         points = surfaces[index].points_m
         others = [surface for j, surface in enumerate(surfaces) if j != index]
         moves = [correction for j, correction in enumerate(corrections) if j != index]
-        others_tree = point_tree(
+        others_tree = NearestTree(
             np.concatenate([apply(move, other.points_m) for move, other in zip(moves, others, strict=True)])
         )
         target_normals = np.concatenate(

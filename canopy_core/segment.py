@@ -40,9 +40,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
 
-from canopy_core.kdtree import point_tree
+from canopy_core.kdtree import NearestTree, point_tree
 from canopy_core.voxels import occupied_voxels
 
 __all__ = ["Wire", "find_wires", "is_wire_piece", "tree_component", "wire_mask"]
@@ -268,7 +267,7 @@ def find_wires(
         None
         if cameras_m is None
         else _SightLines(
-            [point_tree(views_m[i]) for i in seen_by], [np.asarray(cameras_m[i]) for i in seen_by]
+            [NearestTree(views_m[i]) for i in seen_by], [np.asarray(cameras_m[i]) for i in seen_by]
         )
     )
     cells = np.concatenate(views)
@@ -505,7 +504,7 @@ def _off_sight_plane(wire: Wire, points_m: np.ndarray, camera_m: np.ndarray) -> 
 class _SightLines:
     """Each view's points (indexed) and camera centre: what stands between a camera and a place."""
 
-    trees: list[cKDTree]
+    trees: list[NearestTree]
     cameras_m: list[np.ndarray]
 
     def hidden(self, places_m: np.ndarray) -> np.ndarray:
@@ -569,7 +568,7 @@ def _line_cells(cells_m: np.ndarray, tolerance_m: float) -> tuple[np.ndarray, np
     radius = _WIRE_NEIGHBOURHOOD_M
     line = int(np.ceil(2 * radius / tolerance_m + 1))
     most = 2 * line
-    distances, neighbours = point_tree(cells_m).query(cells_m, k=most + 1, distance_upper_bound=radius)
+    distances, neighbours = NearestTree(cells_m).query(cells_m, k=most + 1, distance_upper_bound=radius)
     found = np.isfinite(distances)
     count = found.sum(axis=1)
     sparse = count <= most

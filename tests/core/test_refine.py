@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import open3d as o3d
 import pytest
-from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from canopy_core.config import IcpConfig
 from canopy_core.errors import RegistrationFailed
+from canopy_core.kdtree import NearestTree
 from canopy_core.refine import IcpSurface, anchored_icp, check_icp_agreement, icp_surface, refine_views
 from canopy_core.register import apply, invert, pose_change
 
@@ -43,7 +43,7 @@ def test_anchored_icp_undoes_a_small_misregistration() -> None:
     source = apply(misregistration, _ground_and_trunk(rng))
     correction = anchored_icp(
         source,
-        cKDTree(target),
+        NearestTree(target),
         _normals(target),
         apply(misregistration, BALLS),
         BALLS,
@@ -62,7 +62,7 @@ def test_balls_decide_what_a_ground_plane_leaves_free() -> None:
     slide = np.array([0.006, -0.004, 0.0])
     correction = anchored_icp(
         source,
-        cKDTree(plane),
+        NearestTree(plane),
         _normals(plane),
         BALLS - slide,
         BALLS,
@@ -81,7 +81,7 @@ def test_surfaces_outweigh_balls_that_disagree_slightly_in_tilt() -> None:
     noisy_balls = apply(tilt, BALLS) + rng.normal(0, 0.003, BALLS.shape)
     correction = anchored_icp(
         source,
-        cKDTree(target),
+        NearestTree(target),
         _normals(target),
         noisy_balls,
         BALLS,
