@@ -17,7 +17,7 @@ cheap way: split at the middle of the box, sliding to the nearest point when one
 left as split; they are searched on one thread (SciPy's ``workers`` left at 1), since threads started for
 each search cost more than they saved.
 
-Measured in docs/design.md, "2026-12-07: the k-d trees built and searched for less".
+Measured in docs/design.md, "2026-12-07, second: the k-d trees built and searched for less".
 """
 
 from __future__ import annotations
