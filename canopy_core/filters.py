@@ -100,8 +100,8 @@ def with_neighbours(
     tree within ``radius_m`` (one radius, or one per point).
 
     The point itself is its own nearest, so it has them when its (count + 1)-th nearest lies within its
-    radius: asking for that one distance costs half of counting every point in reach, and the search stops
-    at the largest radius (farther, the distance comes back infinite: not within reach either).
+    radius: asking for the count + 1 nearest costs less than counting every point in reach, and the search
+    stops at the largest radius (farther, the distance comes back infinite: not within reach either).
     """
     if points_m.shape[0] == 0:
         return np.zeros(0, dtype=bool)

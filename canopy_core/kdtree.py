@@ -1,10 +1,13 @@
 """k-d trees over point clouds, for every neighbour search of the pipeline: one kind for the k nearest
 neighbours of each point, another for pairs and balls.
 
-The k nearest (:class:`NearestTree`) are searched by pykdtree, about twice as fast as SciPy's cKDTree on
-the pipeline's clouds, for the same distances to the last bit and the same neighbours (both searches are
-exact; only points at exactly equal distances might come in another order): the refinement's
-correspondences, the normals, the stray-point and support tests. Each search runs on one thread:
+The k nearest (:class:`NearestTree`) are searched by pykdtree, 1.6-1.9 times as fast as SciPy's cKDTree on
+the pipeline's clouds, for the same distances to the last bit and the same neighbours, but where several
+lie at exactly the same distance: both searches are exact, and which of those comes first, or is the one
+nearest, depends on each tree's shape. Measured points seldom tie; cells of a grid often do (the ground
+height map's, where an unseen cell as near to two seen ones may take either's height). The searches: the
+refinement's correspondences, the normals, the stray-point and support tests, the ground height map's
+fill, the wire search's neighbourhoods. Each search runs on one thread:
 pykdtree would start GNU OpenMP's threads, one per CPU, and those do not survive a fork: a process forked
 after them (the views' processes of :func:`canopy_core.processes.on_each`, or any program's that measures
 and then forks) waits for ever in its first search. One thread never starts them.
@@ -39,6 +42,9 @@ class NearestTree:
     pykdtree's tree, answering as SciPy's ``cKDTree.query`` does where pykdtree does not: any number of
     points (none included) and any k, the missing neighbours at an infinite distance with index N (pykdtree
     gives k beyond N without a bound a huge finite distance and an index past N), indices as ``intp``.
+    Unlike SciPy's, it takes points and queries that are not finite without a word (a NaN query finds
+    nothing), a query must be a row of a 2-D array, and the tree cannot be pickled: the pipeline's points
+    are finite, its queries come in arrays, and no tree leaves the process that built it.
     """
 
     def __init__(self, points: np.ndarray) -> None:
