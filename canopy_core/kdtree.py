@@ -7,10 +7,10 @@ lie at exactly the same distance: both searches are exact, and which of those co
 nearest, depends on each tree's shape. Measured points seldom tie; cells of a grid often do (the ground
 height map's, where an unseen cell as near to two seen ones may take either's height). The searches: the
 refinement's correspondences, the normals, the stray-point and support tests, the ground height map's
-fill, the wire search's neighbourhoods. Each search runs on one thread:
-pykdtree would start GNU OpenMP's threads, one per CPU, and those do not survive a fork: a process forked
-after them (the views' processes of :func:`canopy_core.processes.on_each`, or any program's that measures
-and then forks) waits for ever in its first search. One thread never starts them.
+fill, the wire search's neighbourhoods. Each search runs on one thread: pykdtree would start GNU OpenMP's
+threads, one per CPU, and those do not survive a fork: a process forked after them (the views' processes
+of :func:`canopy_core.processes.on_each`, or any program's that measures and then forks) waits for ever in
+its first search. One thread never starts them.
 
 Pairs within a distance and the points within a ball of each (:func:`point_tree`), which pykdtree does not
 search, by SciPy. SciPy's default build splits each node at the median of its points and then shrinks every
